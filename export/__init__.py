@@ -1,0 +1,1 @@
+"""Exporters: OpenUSD, per-frame meshes, per-frame 3DGS PLY."""

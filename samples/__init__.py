@@ -1,0 +1,1 @@
+"""Procedural animated test objects rendered to datasets in the D-NeRF layout."""

@@ -1,0 +1,1 @@
+"""GLSL programs (``*.glsl``), loaded with `splat4d.gl.load_program`."""

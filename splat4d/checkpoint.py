@@ -1,0 +1,166 @@
+"""The splat4d checkpoint: one ``.safetensors`` file of model tensors plus JSON metadata.
+
+Layout
+------
+* Tensors: the model's per-Gaussian tensors under their field names (`Gaussians4D.TENSORS` or
+  `KeyframedGaussians.TENSORS`), float32 or float64, contiguous.
+* Metadata: the safetensors header's ``__metadata__`` holds one key ``"splat4d"`` whose value is a JSON object::
+
+    {"format": "splat4d", "format_version": 1, "kind": "gaussians4d" | "keyframed",
+     "model": {"sh_degree": .., "sh_degree_t": .., "time_range": [t0, t1], "rotation_convention": ..},
+     "background": [r, g, b], "provenance": {...}, "training": {...},
+     "checksums": {"<tensor>": <crc32 of its bytes>}}
+
+  ``provenance`` says where the model came from (tool, source file, what an importer assumed);
+  ``training`` holds the settings of the run that produced it.
+
+Writes are atomic (temp file + rename). Loading checks the version, the metadata, a CRC-32 per tensor (so a
+corrupted byte is caught, not rendered), shapes, dtypes and finiteness, and raises `CheckpointError` with one line
+naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .errors import CheckpointError, ModelError
+from .fileio import atomic_path
+from .model import MODEL_KINDS, Model
+
+FORMAT_NAME = "splat4d"
+FORMAT_VERSION = 1
+METADATA_KEY = "splat4d"
+SUFFIX = ".safetensors"
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint: the model and what was recorded with it."""
+
+    model: Model
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    provenance: dict[str, Any] = field(default_factory=dict)
+    training: dict[str, Any] = field(default_factory=dict)
+    format_version: int = FORMAT_VERSION
+    path: Path | None = None
+
+
+def _crc(t: torch.Tensor) -> int:
+    return zlib.crc32(t.detach().cpu().contiguous().numpy().view(np.uint8).reshape(-1).data)
+
+
+def checkpoint_bytes(model: Model, background=(0.0, 0.0, 0.0), provenance: dict | None = None,
+                     training: dict | None = None) -> bytes:
+    """Serialise to the bytes of a checkpoint file (nothing touches disk)."""
+    from safetensors.torch import save
+
+    model.validate()
+    tensors = {k: v.detach().cpu().contiguous() for k, v in model.tensors().items()}
+    bg = [float(x) for x in background]
+    if len(bg) != 3:
+        raise CheckpointError(f"background must be 3 numbers, got {background!r}")
+    meta = {
+        "format": FORMAT_NAME, "format_version": FORMAT_VERSION, "kind": model.kind,
+        "model": model.metadata(), "background": bg,
+        "provenance": provenance or {}, "training": training or {},
+        "checksums": {k: _crc(v) for k, v in tensors.items()},
+    }
+    return save(tensors, metadata={METADATA_KEY: json.dumps(meta)})
+
+
+def save_checkpoint(path: str | os.PathLike, model: Model, background=(0.0, 0.0, 0.0),
+                    provenance: dict | None = None, training: dict | None = None, force: bool = False) -> Path:
+    """Write `model` to `path` atomically; refuses to overwrite an existing file unless `force`."""
+    data = checkpoint_bytes(model, background, provenance, training)
+    with atomic_path(path, force) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    return Path(path)
+
+
+def read_metadata(path: str | os.PathLike) -> dict:
+    """The JSON metadata of a checkpoint without loading its tensors."""
+    return _open(Path(path))[1]
+
+
+def _open(path: Path):
+    from safetensors import safe_open
+
+    if not path.exists():
+        raise CheckpointError(f"{path}: no such file")
+    if path.is_dir():
+        raise CheckpointError(f"{path}: is a folder, expected a {SUFFIX} checkpoint file")
+    try:
+        f = safe_open(str(path), framework="pt", device="cpu")
+        header = f.metadata() or {}
+    except Exception as exc:
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CheckpointError(f"{path}: not a readable splat4d checkpoint (truncated, corrupted or another "
+                              f"format): {reason}") from None
+    if METADATA_KEY not in header:
+        raise CheckpointError(f"{path}: a safetensors file but not a splat4d checkpoint (no '{METADATA_KEY}' "
+                              f"metadata)")
+    try:
+        meta = json.loads(header[METADATA_KEY])
+        if not isinstance(meta, dict):
+            raise ValueError("not an object")
+    except ValueError as exc:
+        raise CheckpointError(f"{path}: corrupted metadata ({exc})") from None
+    return f, meta
+
+
+def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu") -> Checkpoint:
+    """Load and validate a splat4d checkpoint. Raises `CheckpointError` (one line) on any problem."""
+    path = Path(path)
+    f, meta = _open(path)
+    version = meta.get("format_version")
+    if meta.get("format") != FORMAT_NAME or not isinstance(version, int):
+        raise CheckpointError(f"{path}: metadata does not declare a splat4d format version")
+    if version > FORMAT_VERSION:
+        raise CheckpointError(f"{path}: format version {version} is newer than this splat4d reads "
+                              f"(up to {FORMAT_VERSION}); upgrade splat4d")
+    if version < 1:
+        raise CheckpointError(f"{path}: invalid format version {version}")
+    kind = meta.get("kind")
+    if kind not in MODEL_KINDS:
+        raise CheckpointError(f"{path}: unknown model kind {kind!r} (expected one of {', '.join(MODEL_KINDS)})")
+    cls = MODEL_KINDS[kind]
+    names = set(f.keys())
+    missing = [k for k in cls.TENSORS if k not in names]
+    if missing:
+        raise CheckpointError(f"{path}: missing tensor(s) {', '.join(missing)}")
+    tensors = {}
+    checksums = meta.get("checksums", {})
+    for k in cls.TENSORS:
+        try:
+            t = f.get_tensor(k)
+        except Exception as exc:
+            raise CheckpointError(f"{path}: tensor {k} is unreadable ({str(exc).strip()})") from None
+        if k in checksums and _crc(t) != checksums[k]:
+            raise CheckpointError(f"{path}: tensor {k} is corrupted (checksum mismatch)")
+        if t.dtype not in (torch.float32, torch.float64):
+            raise CheckpointError(f"{path}: tensor {k} has dtype {t.dtype}, expected float32 or float64")
+        if not torch.isfinite(t).all():
+            bad = int((~torch.isfinite(t)).sum())
+            raise CheckpointError(f"{path}: tensor {k} contains {bad} NaN or infinite value(s)")
+        tensors[k] = t.to(device)
+    try:
+        model = cls.from_tensors(tensors, meta.get("model", {}))
+    except (ModelError, KeyError, TypeError, ValueError) as exc:
+        what = f"missing model metadata {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise CheckpointError(f"{path}: {what}") from None
+    bg = meta.get("background", [0.0, 0.0, 0.0])
+    if not (isinstance(bg, list) and len(bg) == 3 and all(isinstance(x, (int, float)) for x in bg)):
+        raise CheckpointError(f"{path}: background must be 3 numbers, got {bg!r}")
+    return Checkpoint(model=model, background=tuple(float(x) for x in bg), provenance=meta.get("provenance", {}),
+                      training=meta.get("training", {}), format_version=version, path=path)

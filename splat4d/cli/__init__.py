@@ -1,0 +1,63 @@
+"""The ``splat4d`` command: thin subcommand modules over the library.
+
+Each subcommand is a module in this package, found automatically, exposing ``HELP`` (one line),
+``add_args(parser)``, ``run(args) -> int`` and optionally ``ORDER`` (its place in ``--help``; default 100) and
+``DESCRIPTION``. The subcommand's name is the module's name (``_`` becomes ``-``). Heavy imports happen inside
+``run`` so that ``--help`` stays fast. Library code raises typed
+errors (`splat4d.errors`); only `main` turns them into ``splat4d: error: <one line>`` and an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from .. import __version__
+from ..errors import Splat4DError
+
+
+def subcommands() -> dict[str, object]:
+    """Subcommand name -> module, in --help order."""
+    mods = []
+    for info in pkgutil.iter_modules(__path__):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(mod, "HELP") and hasattr(mod, "run"):
+            mods.append((getattr(mod, "ORDER", 100), info.name.replace("_", "-"), mod))
+    return {name: mod for _, name, mod in sorted(mods, key=lambda m: (m[0], m[1]))}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="splat4d", description="Toolkit for 4D Gaussian assets: train, view, render, export.")
+    parser.add_argument("--version", action="version", version=f"splat4d {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, mod in subcommands().items():
+        p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        mod.add_args(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except Splat4DError as exc:
+        print(f"splat4d {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"splat4d {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+        print(f"splat4d {args.command}: error: {exc.strerror or exc}: {exc.filename}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

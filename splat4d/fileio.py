@@ -1,0 +1,84 @@
+"""Atomic file output: nothing a user made is ever half-written or silently overwritten.
+
+Every writer in splat4d goes through `atomic_write_bytes`, `atomic_path` or `atomic_dir`: data is written to a
+temporary name in the destination folder and renamed into place (`os.replace` is atomic on POSIX), and an existing
+output is refused unless `force` is set.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+from .errors import OutputExistsError
+
+
+def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
+    """Return `path` as a Path after checking that writing it would not clobber anything without `force`."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise OutputExistsError(f"{path} already exists (use --force to overwrite)")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, force: bool = False, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary file path next to `path`; on success it is renamed to `path`, on error removed.
+
+    `suffix` defaults to the destination's suffix, so that libraries choosing a format by extension
+    (USD, OpenImageIO, PyAV) see the right one.
+    """
+    path = check_writable(path, force)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # The temp name keeps the destination's suffix: format-by-extension writers must see it.
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp.", suffix=path.suffix if suffix is None else suffix,
+                               dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        if path.is_dir():
+            shutil.rmtree(path)
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, force: bool = False) -> Path:
+    """Write `data` to `path` atomically (temp file + fsync + rename)."""
+    with atomic_path(path, force) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
+    """Yield a temporary folder next to `path`; on success it replaces `path`, on error it is removed.
+
+    A folder output (a dataset, a frame sequence) therefore appears complete or not at all.
+    """
+    path = check_writable(path, force)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        if path.exists():
+            old = path.with_name(f".{path.name}.old")
+            if old.exists():
+                shutil.rmtree(old) if old.is_dir() else old.unlink()
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old) if old.is_dir() else old.unlink()
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)

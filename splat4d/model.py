@@ -1,0 +1,370 @@
+"""The Gaussian models: native 4D Gaussians, keyframed (baked) Gaussians, and the 3D slice both produce.
+
+Data flows one way: dataset -> trainer -> checkpoint -> (viewer | exporters). All of them meet here: the trainer
+optimises the tensors of a `Gaussians4D`, and the viewer and exporters only ever call ``model.slice(t)``.
+
+Tensors are torch (float32 or float64, any device); slicing is differentiable so the trainer can backpropagate
+through it. Shapes use N = number of Gaussians, F = number of keyframes, K = (sh_degree + 1)^2 spatial SH
+coefficients per channel and M = K * (sh_degree_t + 1) coefficients of a 4D colour.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Union
+
+import torch
+from torch import Tensor
+
+from . import quaternion, sh
+from .constants import TEMPORAL_CULL
+from .covariance import (RotationConvention, condition_on_time, covariance_3d, covariance_4d,
+                         decompose_covariance_3d, parse_convention, temporal_marginal)
+from .errors import ModelError
+
+
+def _check(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ModelError(msg)
+
+
+@dataclass
+class Gaussians3D:
+    """A set of 3D Gaussians: the slice of a model at one time, ready to rasterize or export.
+
+    Attributes:
+        means: ``[N, 3]`` centres.
+        covariances: ``[N, 3, 3]`` spatial covariances.
+        opacities: ``[N]`` activated opacities in [0, 1], the temporal factor already applied.
+        sh: ``[N, K, 3]`` spatial SH coefficients at this time (time terms folded in); colour = max(SH(d)+0.5, 0).
+        visible: ``[N]`` bool; False for Gaussians culled at this time (4D: temporal marginal <= 0.05).
+        sh_degree: spatial SH degree, K = (sh_degree + 1)^2.
+        velocities: ``[N, 3]`` d(mean)/dt at this time, or None.
+        scales, quats: ``[N, 3]`` std-devs and ``[N, 4]`` w-first quaternions when the source model stores them
+            (keyframed models); otherwise None and `scales_quats()` derives them from the covariances.
+    """
+
+    means: Tensor
+    covariances: Tensor
+    opacities: Tensor
+    sh: Tensor
+    visible: Tensor
+    sh_degree: int
+    velocities: Tensor | None = None
+    scales: Tensor | None = None
+    quats: Tensor | None = None
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    def colors(self, campos: Tensor, degree: int | None = None) -> Tensor:
+        """``[N, 3]`` RGB seen from camera centre ``campos`` ``[3]`` (directions from the sliced means).
+
+        `degree` renders at a lower SH degree than the model's (the viewer's SH slider).
+        """
+        deg = self.sh_degree if degree is None else min(degree, self.sh_degree)
+        dirs = self.means - campos.to(self.means)
+        return sh.sh_to_rgb(sh.eval_sh(deg, self.sh, dirs))
+
+    def scales_quats(self) -> tuple[Tensor, Tensor]:
+        """(scales ``[N, 3]``, quats ``[N, 4]``) reproducing the covariances (exact when stored)."""
+        if self.scales is not None and self.quats is not None:
+            return self.scales, self.quats
+        return decompose_covariance_3d(self.covariances)
+
+    def select(self, mask: Tensor) -> "Gaussians3D":
+        """The subset where `mask` (``[N]`` bool or indices) holds."""
+        out = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = v[mask] if isinstance(v, Tensor) else v
+        return Gaussians3D(**out)
+
+
+@dataclass
+class Gaussians4D:
+    """Native 4D Gaussians (Yang et al. 2024), stored raw exactly like the official code (notes §1.1).
+
+    Attributes:
+        means: ``[N, 3]`` spatial mean mu_xyz.
+        t_means: ``[N]`` temporal mean mu_t, in the units of `time_range`.
+        log_scales: ``[N, 3]`` log spatial std-devs.
+        log_t_scales: ``[N]`` log temporal std-dev.
+        quats_l, quats_r: ``[N, 4]`` left / right quaternions, w first, unnormalised (normalised on use).
+        opacity_logits: ``[N]`` logit of the opacity.
+        sh_dc: ``[N, 1, 3]`` first colour coefficient.
+        sh_rest: ``[N, M - 1, 3]`` the others, M = (sh_degree+1)^2 (sh_degree_t+1), layout of `splat4d.sh`.
+        sh_degree: spatial SH degree 0..3.
+        sh_degree_t: time (Fourier) degree 0..2.
+        time_range: (t0, t1); T = t1 - t0 scales the time terms of the colour.
+        rotation_convention: 'current' (official main since 2024-09-15) or 'legacy' (older, Efficient4D).
+    """
+
+    means: Tensor
+    t_means: Tensor
+    log_scales: Tensor
+    log_t_scales: Tensor
+    quats_l: Tensor
+    quats_r: Tensor
+    opacity_logits: Tensor
+    sh_dc: Tensor
+    sh_rest: Tensor
+    sh_degree: int = 0
+    sh_degree_t: int = 0
+    time_range: tuple[float, float] = (0.0, 1.0)
+    rotation_convention: RotationConvention = "current"
+
+    #: Names of the per-Gaussian tensors, in checkpoint order.
+    TENSORS = ("means", "t_means", "log_scales", "log_t_scales", "quats_l", "quats_r", "opacity_logits",
+               "sh_dc", "sh_rest")
+
+    def __post_init__(self) -> None:
+        self.rotation_convention = parse_convention(self.rotation_convention)
+        self.time_range = (float(self.time_range[0]), float(self.time_range[1]))
+        self.validate()
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def kind(self) -> str:
+        return "gaussians4d"
+
+    @property
+    def duration(self) -> float:
+        return self.time_range[1] - self.time_range[0]
+
+    def validate(self) -> None:
+        """Raise ModelError naming the first tensor whose shape or dtype is wrong."""
+        n = self.means.shape[0] if self.means.dim() == 2 else -1
+        _check(0 <= self.sh_degree <= sh.MAX_SH_DEGREE, f"sh_degree must be 0..3, got {self.sh_degree}")
+        _check(0 <= self.sh_degree_t <= sh.MAX_SH_DEGREE_T, f"sh_degree_t must be 0..2, got {self.sh_degree_t}")
+        m = sh.num_sh_coeffs(self.sh_degree, self.sh_degree_t)
+        expected = {
+            "means": (n, 3), "t_means": (n,), "log_scales": (n, 3), "log_t_scales": (n,), "quats_l": (n, 4),
+            "quats_r": (n, 4), "opacity_logits": (n,), "sh_dc": (n, 1, 3), "sh_rest": (n, m - 1, 3),
+        }
+        for name, shape in expected.items():
+            v = getattr(self, name)
+            _check(isinstance(v, Tensor), f"{name} must be a torch tensor, got {type(v).__name__}")
+            _check(tuple(v.shape) == shape and n >= 0,
+                   f"{name} has shape {list(v.shape)}, expected {[('N' if s == n else s) for s in shape]} "
+                   f"with N = {n}" + (f" (sh degrees {self.sh_degree}, {self.sh_degree_t})" if name == "sh_rest" else ""))
+            _check(v.dtype in (torch.float32, torch.float64), f"{name} has dtype {v.dtype}, expected float32/64")
+        _check(math.isfinite(self.duration) and self.duration > 0,
+               f"time_range must satisfy t0 < t1, got {self.time_range}")
+
+    # --- activated quantities ---------------------------------------------------------------------------------
+    @property
+    def scales(self) -> Tensor:
+        return torch.exp(self.log_scales)
+
+    @property
+    def t_scales(self) -> Tensor:
+        return torch.exp(self.log_t_scales)
+
+    @property
+    def opacities(self) -> Tensor:
+        return torch.sigmoid(self.opacity_logits)
+
+    @property
+    def sh_coeffs(self) -> Tensor:
+        """``[N, M, 3]`` all colour coefficients (dc first)."""
+        return torch.cat([self.sh_dc, self.sh_rest], 1)
+
+    def covariance_4d(self) -> Tensor:
+        """``[N, 4, 4]`` full covariance in (x, y, z, t)."""
+        return covariance_4d(self.scales, self.t_scales, self.quats_l, self.quats_r, self.rotation_convention)
+
+    def slice(self, t: float, sh_time_terms: bool = True) -> Gaussians3D:
+        """The conditional 3D Gaussians at time `t` (differentiable).
+
+        Means move linearly, covariances are the (time-constant) conditional ones, opacities are multiplied by
+        the unnormalised temporal marginal, and `visible` is False where that marginal is <= 0.05.
+        `sh_time_terms=False` drops the cosine time terms of the colour.
+        """
+        cov3, velocity, var_t = condition_on_time(self.covariance_4d())
+        dt = t - self.t_means
+        marginal = temporal_marginal(t, self.t_means, var_t)
+        degree_t = self.sh_degree_t if sh_time_terms else 0
+        coeffs = self.sh_coeffs[:, : sh.num_sh_coeffs(self.sh_degree, degree_t)]
+        return Gaussians3D(
+            means=self.means + velocity * dt[:, None],
+            covariances=cov3,
+            opacities=self.opacities * marginal,
+            sh=sh.collapse_time(coeffs, self.sh_degree, degree_t, -dt, self.duration),
+            visible=marginal > TEMPORAL_CULL,
+            sh_degree=self.sh_degree,
+            velocities=velocity,
+        )
+
+    def tensors(self) -> dict[str, Tensor]:
+        return {name: getattr(self, name) for name in self.TENSORS}
+
+    def metadata(self) -> dict:
+        return {"sh_degree": self.sh_degree, "sh_degree_t": self.sh_degree_t,
+                "time_range": list(self.time_range), "rotation_convention": self.rotation_convention}
+
+    @classmethod
+    def from_tensors(cls, tensors: dict[str, Tensor], meta: dict) -> "Gaussians4D":
+        return cls(**{k: tensors[k] for k in cls.TENSORS}, sh_degree=int(meta["sh_degree"]),
+                   sh_degree_t=int(meta["sh_degree_t"]), time_range=tuple(meta["time_range"]),
+                   rotation_convention=meta["rotation_convention"])
+
+    def to(self, device=None, dtype=None) -> "Gaussians4D":
+        return replace(self, **{k: v.to(device=device, dtype=dtype) for k, v in self.tensors().items()})
+
+    def detach(self) -> "Gaussians4D":
+        return replace(self, **{k: v.detach() for k, v in self.tensors().items()})
+
+
+@dataclass
+class KeyframedGaussians:
+    """Gaussians sampled at keyframe times (baked deformation models, PLY sequences), interpolated between keys.
+
+    Attributes:
+        times: ``[F]`` strictly increasing keyframe times.
+        means: ``[F, N, 3]``.
+        quats: ``[F, N, 4]`` w first.
+        scales: ``[F, N, 3]`` activated std-devs.
+        opacities: ``[F, N]`` activated opacities; 0 marks a Gaussian absent at that key.
+        sh: ``[F, N, K, 3]`` spatial SH coefficients, K = (sh_degree + 1)^2.
+        sh_degree: 0..3.
+
+    `slice(t)` interpolates linearly (slerp for rotations) between the two keys around t and holds the first/last
+    key outside [times[0], times[-1]].
+    """
+
+    times: Tensor
+    means: Tensor
+    quats: Tensor
+    scales: Tensor
+    opacities: Tensor
+    sh: Tensor
+    sh_degree: int = 0
+
+    TENSORS = ("times", "means", "quats", "scales", "opacities", "sh")
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def __len__(self) -> int:
+        return self.means.shape[1]
+
+    @property
+    def kind(self) -> str:
+        return "keyframed"
+
+    @property
+    def time_range(self) -> tuple[float, float]:
+        return float(self.times[0]), float(self.times[-1])
+
+    @property
+    def num_frames(self) -> int:
+        return self.times.shape[0]
+
+    def validate(self) -> None:
+        f = self.times.shape[0] if self.times.dim() == 1 else -1
+        n = self.means.shape[1] if self.means.dim() == 3 else -1
+        _check(f >= 1, f"times must be a 1-D tensor of keyframe times, got shape {list(self.times.shape)}")
+        k = sh.num_sh_bases(self.sh_degree)
+        expected = {"means": (f, n, 3), "quats": (f, n, 4), "scales": (f, n, 3), "opacities": (f, n),
+                    "sh": (f, n, k, 3)}
+        for name, shape in expected.items():
+            v = getattr(self, name)
+            _check(isinstance(v, Tensor), f"{name} must be a torch tensor, got {type(v).__name__}")
+            _check(tuple(v.shape) == shape and n >= 0,
+                   f"{name} has shape {list(v.shape)}, expected [F={f}, N={n}, ...] = {list(shape)}")
+            _check(v.dtype in (torch.float32, torch.float64), f"{name} has dtype {v.dtype}, expected float32/64")
+        _check(bool((self.times[1:] > self.times[:-1]).all()), "keyframe times must be strictly increasing")
+
+    def _bracket(self, t: float) -> tuple[int, int, float]:
+        """Indices of the keys around t and the blend weight of the second."""
+        times = self.times.detach().double().cpu()
+        if self.num_frames == 1 or t <= times[0]:
+            return 0, 0, 0.0
+        if t >= times[-1]:
+            return self.num_frames - 1, self.num_frames - 1, 0.0
+        i = int(torch.searchsorted(times, torch.tensor([float(t)], dtype=torch.float64), right=True)[0]) - 1
+        w = (t - float(times[i])) / float(times[i + 1] - times[i])
+        return i, i + 1, w
+
+    def slice(self, t: float) -> Gaussians3D:
+        i, j, w = self._bracket(t)
+
+        def lerp(x: Tensor) -> Tensor:
+            return x[i] if w == 0.0 else x[i] + (x[j] - x[i]) * w
+
+        quats = self.quats[i] if w == 0.0 else quaternion.slerp(self.quats[i], self.quats[j], w)
+        quats = quaternion.normalize(quats)
+        scales = lerp(self.scales)
+        opacities = lerp(self.opacities)
+        if self.num_frames > 1:
+            a, b = (i, j) if i != j else ((i - 1, i) if i > 0 else (0, 1))
+            velocities = (self.means[b] - self.means[a]) / (self.times[b] - self.times[a])
+        else:
+            velocities = torch.zeros_like(self.means[0])
+        return Gaussians3D(
+            means=lerp(self.means), covariances=covariance_3d(scales, quats), opacities=opacities,
+            sh=lerp(self.sh), visible=opacities > 0, sh_degree=self.sh_degree, velocities=velocities,
+            scales=scales, quats=quats)
+
+    def tensors(self) -> dict[str, Tensor]:
+        return {name: getattr(self, name) for name in self.TENSORS}
+
+    def metadata(self) -> dict:
+        return {"sh_degree": self.sh_degree, "time_range": list(self.time_range)}
+
+    @classmethod
+    def from_tensors(cls, tensors: dict[str, Tensor], meta: dict) -> "KeyframedGaussians":
+        return cls(**{k: tensors[k] for k in cls.TENSORS}, sh_degree=int(meta["sh_degree"]))
+
+    def to(self, device=None, dtype=None) -> "KeyframedGaussians":
+        return replace(self, **{k: v.to(device=device, dtype=dtype) for k, v in self.tensors().items()})
+
+
+#: Any model a checkpoint can hold; both have ``slice(t)``, ``time_range``, ``sh_degree`` and ``len()``.
+Model = Union[Gaussians4D, KeyframedGaussians]
+MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians}
+
+
+def model_bounds(model: Model, num_times: int = 9) -> tuple[Tensor, Tensor]:
+    """Axis-aligned box (min ``[3]``, max ``[3]``) of the visible means over `num_times` times in the time range."""
+    t0, t1 = model.time_range
+    lo, hi = None, None
+    with torch.no_grad():
+        for t in torch.linspace(t0, t1, num_times).tolist():
+            g = model.slice(t)
+            pts = g.means[g.visible]
+            if pts.shape[0] == 0:
+                continue
+            a, b = pts.min(0).values, pts.max(0).values
+            lo = a if lo is None else torch.minimum(lo, a)
+            hi = b if hi is None else torch.maximum(hi, b)
+    if lo is None:
+        z = torch.zeros(3)
+        return z, z
+    return lo, hi
+
+
+def static_gaussians4d(means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, rgb: Tensor,
+                       time_range: tuple[float, float] = (0.0, 1.0), t_scale: float = 1e3) -> Gaussians4D:
+    """Gaussians4D that do not move and never fade: equal left/right quaternions under the 'current' convention
+    give R4 = block-diag(R3', 1), and a huge temporal std-dev keeps the marginal ~1 over the time range.
+
+    `quats` are the desired 3D rotations (w first); under 'current' the 3D block of R4 is the axis-reversed R3,
+    so the quaternion is remapped to produce exactly R3(quats).
+    """
+    w, x, y, z = quaternion.normalize(quats).unbind(-1)
+    # current: R4 = P A P, A = block(1, R3(q)) for q_l = q_r = q; with P reversing (x,y,z) the spatial block is
+    # P3 R3(q) P3 = R3(q') where q' = (w, -z, -y, -x) (conjugation by the reflection P3 = det -1 permutation).
+    q = torch.stack([w, -z, -y, -x], -1)
+    n = means.shape[0]
+    dtype = means.dtype
+    return Gaussians4D(
+        means=means, t_means=torch.full((n,), 0.5 * (time_range[0] + time_range[1]), dtype=dtype),
+        log_scales=torch.log(scales), log_t_scales=torch.full((n,), math.log(t_scale), dtype=dtype),
+        quats_l=q, quats_r=q.clone(), opacity_logits=torch.logit(opacities.clamp(1e-6, 1 - 1e-6)),
+        sh_dc=sh.rgb_to_sh(rgb)[:, None, :], sh_rest=torch.zeros((n, 0, 3), dtype=dtype),
+        sh_degree=0, sh_degree_t=0, time_range=time_range, rotation_convention="current")

@@ -1,0 +1,1 @@
+"""Training of native 4D Gaussians: rasterizer, datasets, losses, recipes."""

@@ -1,0 +1,1 @@
+"""Real-time OpenGL viewer and headless renderer for splat4d models."""

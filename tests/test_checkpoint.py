@@ -1,0 +1,122 @@
+"""Checkpoint round trip and the one-line failures of bad files, from the library and the CLI."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from splat4d.checkpoint import FORMAT_VERSION, checkpoint_bytes, load_checkpoint, save_checkpoint
+from splat4d.cli import main
+from splat4d.errors import CheckpointError, OutputExistsError
+from test_model import keyframed, random_model
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_roundtrip_is_exact(tmp_path, dtype):
+    model = random_model(100, "legacy", dtype=dtype, sh_degree=3, sh_degree_t=2)
+    path = save_checkpoint(tmp_path / "m.safetensors", model, background=(1, 1, 1),
+                           provenance={"tool": "test"}, training={"iters": 5})
+    ck = load_checkpoint(path)
+    for k, v in model.tensors().items():
+        assert torch.equal(getattr(ck.model, k), v), k
+    assert (ck.model.sh_degree, ck.model.sh_degree_t, ck.model.time_range, ck.model.rotation_convention) == \
+        (3, 2, (0.0, 1.0), "legacy")
+    assert ck.background == (1.0, 1.0, 1.0) and ck.provenance == {"tool": "test"} and ck.training == {"iters": 5}
+    assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # no temp files left behind
+
+
+def test_keyframed_roundtrip(tmp_path):
+    k = keyframed()
+    ck = load_checkpoint(save_checkpoint(tmp_path / "k.safetensors", k))
+    assert ck.model.kind == "keyframed"
+    for name, v in k.tensors().items():
+        assert torch.equal(getattr(ck.model, name), v)
+
+
+def test_existing_output_is_not_clobbered(tmp_path):
+    path = tmp_path / "m.safetensors"
+    path.write_bytes(b"precious")
+    with pytest.raises(OutputExistsError):
+        save_checkpoint(path, random_model(3, "current"))
+    assert path.read_bytes() == b"precious"
+    save_checkpoint(path, random_model(3, "current"), force=True)
+    assert len(load_checkpoint(path).model) == 3
+
+
+def write_raw(path, tensors, meta):
+    save_file(tensors, str(path), metadata={"splat4d": json.dumps(meta)})
+
+
+def good(tmp_path):
+    path = save_checkpoint(tmp_path / "good.safetensors", random_model(10, "current", dtype=torch.float32))
+    return path, path.read_bytes()
+
+
+def bad_files(tmp_path):
+    path, data = good(tmp_path)
+    files = {}
+    files["truncated"] = data[: len(data) // 2]
+    corrupt = bytearray(data)
+    corrupt[-7] ^= 0x40  # a bit flip inside the tensor data
+    files["corrupted"] = bytes(corrupt)
+    files["garbage"] = b"this is not a checkpoint at all"
+    ck = load_checkpoint(path)
+    meta = json.loads(__import__("safetensors").safe_open(str(path), "pt").metadata()["splat4d"])
+    tensors = {k: v.contiguous() for k, v in ck.model.tensors().items()}
+    write_raw(tmp_path / "v.safetensors", tensors, {**meta, "format_version": FORMAT_VERSION + 1})
+    files["version"] = (tmp_path / "v.safetensors").read_bytes()
+    nan = dict(tensors)
+    nan["means"] = nan["means"].clone()
+    nan["means"][3, 1] = float("nan")
+    write_raw(tmp_path / "n.safetensors", nan, {k: v for k, v in meta.items() if k != "checksums"})
+    files["nan"] = (tmp_path / "n.safetensors").read_bytes()
+    shape = dict(tensors)
+    shape["quats_l"] = shape["quats_l"][:, :3].contiguous()
+    write_raw(tmp_path / "s.safetensors", shape, {k: v for k, v in meta.items() if k != "checksums"})
+    files["shape"] = (tmp_path / "s.safetensors").read_bytes()
+    return files
+
+
+EXPECTED = {"truncated": "truncated", "corrupted": "corrupted", "garbage": "truncated, corrupted or another format",
+            "version": "newer", "nan": "NaN", "shape": "quats_l"}
+
+
+@pytest.mark.parametrize("case", list(EXPECTED))
+def test_bad_files_fail_with_one_clear_line(tmp_path, case, capsys):
+    data = bad_files(tmp_path)[case]
+    path = tmp_path / f"{case}.safetensors"
+    path.write_bytes(data)
+    with pytest.raises(CheckpointError, match=EXPECTED[case]):
+        load_checkpoint(path)
+    assert main(["info", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and EXPECTED[case] in err
+
+
+def test_missing_file_and_cli_exit_code(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "splat4d", "info", str(tmp_path / "nope.safetensors")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().count("\n") == 0 and "no such file" in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_info_reports_the_model(tmp_path, capsys):
+    model = random_model(42, "current", dtype=torch.float32, sh_degree=2, sh_degree_t=1)
+    path = save_checkpoint(tmp_path / "m.safetensors", model, provenance={"tool": "t"})
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["count"] == 42 and info["sh_degree"] == 2 and info["sh_degree_t"] == 1
+    assert info["time_range"] == [0.0, 1.0] and info["size_bytes"] == os.path.getsize(path)
+    assert all(lo <= hi for lo, hi in zip(info["bounds_min"], info["bounds_max"]))
+    assert main(["info", str(path)]) == 0
+    assert "42" in capsys.readouterr().out
+
+
+def test_bytes_are_deterministic():
+    m = random_model(10, "current")
+    assert checkpoint_bytes(m) == checkpoint_bytes(m)

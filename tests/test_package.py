@@ -1,0 +1,46 @@
+"""The distribution installs as one package `splat4d` with its subpackages and shaders, and every subcommand
+has --help."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from splat4d.cli import main, subcommands
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_non_editable_install_layout(tmp_path):
+    """`pip install .` (into a target folder) yields splat4d.{train,viewer,export,samples,shaders} and GLSL data,
+    and no bare top-level `train`/`export` modules."""
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--quiet",
+                    "--target", str(target), str(ROOT)], check=True, capture_output=True)
+    top = sorted(p.name for p in target.iterdir() if not p.name.endswith((".dist-info", ".egg-info")))
+    assert "splat4d" in top and not {"train", "export", "viewer", "samples", "shaders"} & set(top), top
+    for sub in ("train", "viewer", "export", "samples", "shaders", "cli"):
+        assert (target / "splat4d" / sub / "__init__.py").exists(), sub
+    shaders = {p.name for p in (target / "splat4d" / "shaders").glob("*.glsl")}
+    assert shaders == {p.name for p in (ROOT / "shaders").glob("*.glsl")}
+    code = ("import splat4d, splat4d.train, splat4d.viewer, splat4d.export; "
+            "from splat4d.gl import shader_source; print(splat4d.__file__)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env={"PYTHONPATH": str(target)},
+                         capture_output=True, text=True, check=True).stdout
+    assert str(target) in out
+
+
+@pytest.mark.parametrize("name", list(subcommands()))
+def test_every_subcommand_has_help(name, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([name, "--help"])
+    assert exc.value.code == 0
+    assert "usage: splat4d " + name in capsys.readouterr().out
+
+
+def test_console_script_help():
+    exe = Path(sys.executable).with_name("splat4d")
+    out = subprocess.run([str(exe), "--help"], capture_output=True, text=True, check=True).stdout
+    for name in subcommands():
+        assert name in out

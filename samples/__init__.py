@@ -1,1 +1,24 @@
-"""Procedural animated test objects rendered to datasets in the D-NeRF layout."""
+"""Procedural animated test objects, rendered to multi-view video datasets (D-NeRF layout) or built directly into
+native 4D Gaussian models.
+
+Objects (`SAMPLES`: name -> description) are triangle meshes with per-vertex colours and a fixed topology over
+scene time t in [0, 1], inside a ball of radius 0.9 (Blender world, +z up):
+
+>>> from splat4d.samples import SAMPLES, mesh_at, object_bounds, write_dataset, build_model
+>>> vertices, faces, colors = mesh_at("spinner", 0.5)       # (V, 3), (F, 3), (V, 3) albedo
+>>> lo, hi = object_bounds("wave", 0.25)                     # (3,), (3,)
+>>> write_dataset("morph", "data/morph")                     # 16 views x 16 frames at 256 px + 16 test images
+>>> model = build_model("spinner", num_gaussians=20000)      # Gaussians4D following the known motion
+"""
+
+from .dataset import DatasetConfig, View, test_views, train_times, train_views, transforms_json, write_dataset
+from .gaussians import build_model
+from .geometry import Mesh
+from .objects import (BOUNDING_RADIUS, OBJECTS, SAMPLES, SampleConfigError, SampleObject, UnknownSampleError,
+                      get_sample, mesh_at, object_bounds, object_center)
+from .render import MeshRenderer, shade
+
+__all__ = ["BOUNDING_RADIUS", "DatasetConfig", "Mesh", "MeshRenderer", "OBJECTS", "SAMPLES", "SampleConfigError",
+           "SampleObject", "UnknownSampleError", "View", "build_model", "get_sample", "mesh_at", "object_bounds",
+           "object_center", "shade", "test_views", "train_times", "train_views", "transforms_json",
+           "write_dataset"]

@@ -33,7 +33,15 @@ def register_reader(reader: Reader) -> None:
 
 
 def readers() -> list[Reader]:
+    _register_importers()
     return list(_READERS)
+
+
+def _register_importers() -> None:
+    """Importers of other tools' files (`splat4d.importers`) register their readers on first use."""
+    from . import importers
+
+    importers.register()
 
 
 def _is_safetensors(path: Path) -> bool:
@@ -52,8 +60,11 @@ register_reader(Reader("splat4d", "splat4d checkpoint (.safetensors)", _is_safet
 
 def load_model(path: str | os.PathLike, **options: Any) -> Checkpoint:
     """Load any supported model file; raises `CheckpointError` naming the file when none can read it."""
+    import glob
+
+    _register_importers()
     path = Path(path)
-    if not path.exists():
+    if not path.exists() and not glob.has_magic(str(path)):  # a glob pattern names a PLY sequence
         raise CheckpointError(f"{path}: no such file or folder")
     for r in _READERS:
         if r.sniff(path):

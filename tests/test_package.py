@@ -22,6 +22,9 @@ def test_non_editable_install_layout(tmp_path):
     assert "splat4d" in top and not {"train", "export", "viewer", "samples", "shaders"} & set(top), top
     for sub in ("train", "viewer", "export", "samples", "shaders", "cli"):
         assert (target / "splat4d" / sub / "__init__.py").exists(), sub
+    # every subpackage of the core is installed too
+    for init in (ROOT / "splat4d").glob("*/__init__.py"):
+        assert (target / "splat4d" / init.parent.name / "__init__.py").exists(), init.parent.name
     shaders = {p.name for p in (target / "splat4d" / "shaders").glob("*.glsl")}
     assert shaders == {p.name for p in (ROOT / "shaders").glob("*.glsl")}
     code = ("import splat4d, splat4d.train, splat4d.viewer, splat4d.export; "

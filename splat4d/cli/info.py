@@ -10,22 +10,27 @@ HELP = "print what a checkpoint or model file holds (count, time range, bounds, 
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d .safetensors checkpoint)")
+    from ..importers import add_import_args
+
+    p.add_argument("checkpoint", metavar="CKPT", help="model file: splat4d .safetensors checkpoint, or any file "
+                   "the importers read (official 4DGS .pth, 4DGaussians/4DGen folder, 3DGS PLY, PLY folder/glob)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    add_import_args(p)
 
 
-def summarize(path) -> dict:
-    """The facts `info` prints, as a JSON-able dict."""
+def summarize(path, **options) -> dict:
+    """The facts `info` prints, as a JSON-able dict (`options`: import options for other tools' files)."""
+    import glob
     from pathlib import Path
 
     from ..formats import load_model
     from ..model import model_bounds
 
-    ckpt = load_model(path)
+    ckpt = load_model(path, **options)
     model = ckpt.model
     lo, hi = model_bounds(model)
-    size = sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file()) if Path(path).is_dir() \
-        else Path(path).stat().st_size
+    files = [Path(f) for f in glob.glob(str(path))] if not Path(path).exists() else [Path(path)]
+    size = sum(f.stat().st_size for p in files for f in ([p] if p.is_file() else p.rglob("*")) if f.is_file())
     out = {
         "path": str(path), "kind": model.kind, "count": len(model),
         "time_range": list(model.time_range),
@@ -50,7 +55,9 @@ def _human(n: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    info = summarize(args.checkpoint)
+    from ..importers import import_options
+
+    info = summarize(args.checkpoint, **import_options(args))
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
@@ -68,7 +75,10 @@ def run(args: argparse.Namespace) -> int:
     rows += [("background", fmt(info["background"])), ("dtype", info["dtype"]),
              ("size on disk", _human(info["size_bytes"])), ("format version", str(info["format_version"]))]
     for k, v in info["provenance"].items():
-        rows.append((f"provenance.{k}", json.dumps(v) if not isinstance(v, str) else v))
+        if isinstance(v, list) and v and all(isinstance(x, str) for x in v):  # e.g. what an importer assumed
+            rows += [(f"provenance.{k}" if i == 0 else "", x) for i, x in enumerate(v)]
+        else:
+            rows.append((f"provenance.{k}", json.dumps(v) if not isinstance(v, str) else v))
     if info["training"]:
         rows.append(("training", json.dumps(info["training"], sort_keys=True)[:200]))
     width = max(len(r[0]) for r in rows)

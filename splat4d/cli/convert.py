@@ -1,0 +1,66 @@
+"""``splat4d convert INPUT --out CKPT``: write any readable model file as a splat4d checkpoint."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 15
+HELP = "convert an official 4DGS/Efficient4D checkpoint, a 4DGaussians/4DGen folder or 3DGS PLY(s) to a checkpoint"
+DESCRIPTION = """\
+Convert another tool's model into a splat4d checkpoint (.safetensors).
+
+INPUT is one of:
+  chkpnt30000.pth / model.pth     official 4DGS (main) or Efficient4D checkpoint, or the folder holding it
+  output/<run>/                   4DGaussians or 4DGen output (point_cloud/iteration_N/ + deformation.pth),
+                                  baked into --frames keyframes
+  point_cloud.ply                 one 3DGS PLY (static model)
+  frames/  or  'frames/*.ply'     per-frame 3DGS PLYs (keyframes; quote the glob)
+  model.safetensors               a splat4d checkpoint (re-saved)
+
+Values a file does not store are assumed, printed and recorded in the checkpoint's provenance
+(see `splat4d info CKPT`); give the import options below to set them.
+
+examples:
+  splat4d convert chkpnt30000.pth --out lego.safetensors --convention current --time-range 0 1
+  splat4d convert efficient4d/model.pth --out e4d.safetensors          # legacy rotation, 0..15, white
+  splat4d convert output/dnerf/lego --out lego4dgs.safetensors --frames 50
+  splat4d convert 'frames/*.ply' --out seq.safetensors --time-range 0 2
+"""
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    from ..importers import add_import_args
+
+    p.add_argument("input", metavar="INPUT", help="file, folder or quoted glob to convert")
+    p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
+    p.add_argument("--force", action="store_true", help="overwrite CKPT if it exists")
+    p.add_argument("--dtype", choices=("float32", "float64"), default="float32",
+                   help="floating-point type of the stored tensors (default float32)")
+    add_import_args(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import torch
+
+    from ..checkpoint import SUFFIX, save_checkpoint
+    from ..errors import Splat4DError
+    from ..fileio import check_writable
+    from ..formats import load_model
+    from ..importers import import_options
+
+    out = Path(args.out)
+    if out.suffix != SUFFIX:
+        raise Splat4DError(f"{out}: the output must be a {SUFFIX} file")
+    check_writable(out, args.force)  # fail before a long import
+    ckpt = load_model(args.input, **import_options(args))
+    model = ckpt.model.to(dtype=getattr(torch, args.dtype))
+    provenance = dict(ckpt.provenance) or {"source": str(Path(args.input).resolve()), "reader": "splat4d"}
+    save_checkpoint(out, model, background=ckpt.background, provenance=provenance, training=ckpt.training,
+                    force=args.force)
+    t0, t1 = model.time_range
+    frames = f", {model.num_frames} keyframes" if model.kind == "keyframed" else ""
+    print(f"wrote {out}: {model.kind}, {len(model):,} Gaussians, time {t0:g}..{t1:g}{frames}, "
+          f"SH degree {model.sh_degree}")
+    return 0

@@ -1,0 +1,353 @@
+"""3DGS PLY files: one as a static model, a folder or glob of per-frame files as keyframes.
+
+The 3DGS layout (Inria ``save_ply``; 4DGaussians' ``point_cloud.ply``; the per-frame files of
+``splat4d export ply`` and of other tools) is one ``vertex`` element of float properties::
+
+    x y z  nx ny nz  f_dc_0..2  f_rest_0..(3(K-1)-1)  opacity  scale_0..2  rot_0..3
+
+* ``f_rest`` is channel-major: ``f_rest[c*(K-1) + j-1]`` is SH coefficient j (1..K-1) of channel c, so its count
+  3(K-1) = 0, 9, 24, 45 gives the SH degree 0..3;
+* ``opacity`` is a logit, ``scale_*`` natural-log std-devs, ``rot_*`` an unnormalised (w, x, y, z) quaternion;
+* the normals are ignored. A single ``scale_0`` (isotropic Gaussians, as some 4DGen files) is used on all axes.
+
+The reader is plain numpy (binary little/big-endian and ASCII); properties may come in any order and any
+numeric type. Column names are defined here (`COLUMN_PREFIXES`); `splat4d.export.ply` writes the same layout.
+"""
+
+from __future__ import annotations
+
+import glob as globmod
+import json
+import math
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .. import sh as shmod
+from ..checkpoint import Checkpoint
+from ..errors import CheckpointError
+from ..model import KeyframedGaussians
+from ..quaternion import normalize
+from .common import natural_key, require_finite, static_model
+from .options import ImportRecord, check_options
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
+    "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4",
+    "double": "f8", "float64": "f8",
+}
+#: The 3DGS vertex properties splat4d reads (numbered ones are ``<prefix><i>``).
+COLUMN_PREFIXES = {"dc": "f_dc_", "rest": "f_rest_", "scale": "scale_", "rot": "rot_"}
+_MAX_HEADER = 1 << 20
+
+
+# --- generic PLY ----------------------------------------------------------------------------------------------
+@dataclass
+class PlyElement:
+    name: str
+    count: int
+    properties: list[tuple[str, str]]  # (name, numpy type) ; list properties have type "list"
+
+
+@dataclass
+class PlyHeader:
+    format: str  # "ascii" | "binary_little_endian" | "binary_big_endian"
+    elements: list[PlyElement]
+    comments: list[str]
+    data_offset: int
+
+
+def is_ply(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) in (b"ply\n", b"ply\r")
+    except OSError:
+        return False
+
+
+def read_ply_header(path: Path, data: bytes) -> PlyHeader:
+    """Parse the header at the start of `data` (the file's bytes); CheckpointError naming `path` if malformed."""
+    end = data.find(b"end_header", 0, _MAX_HEADER)
+    if not data.startswith(b"ply") or end < 0:
+        raise CheckpointError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
+    newline = data.find(b"\n", end)
+    offset = len(data) if newline < 0 else newline + 1
+    lines = data[:end].decode("ascii", errors="replace").splitlines()[1:]
+    fmt, elements, comments = None, [], []
+    for raw in lines:
+        parts = raw.split()
+        if not parts:
+            continue
+        key = parts[0]
+        if key == "format" and len(parts) >= 2:
+            fmt = parts[1]
+        elif key in ("comment", "obj_info"):
+            comments.append(raw.split(None, 1)[1] if len(parts) > 1 else "")
+        elif key == "element" and len(parts) == 3:
+            try:
+                elements.append(PlyElement(parts[1], int(parts[2]), []))
+            except ValueError:
+                raise CheckpointError(f"{path}: bad PLY header line {raw!r}") from None
+        elif key == "property" and elements:
+            if len(parts) >= 5 and parts[1] == "list":
+                elements[-1].properties.append((parts[4], "list"))
+            elif len(parts) == 3 and parts[1] in _PLY_TYPES:
+                elements[-1].properties.append((parts[2], _PLY_TYPES[parts[1]]))
+            else:
+                raise CheckpointError(f"{path}: unsupported PLY property line {raw!r}")
+        else:
+            raise CheckpointError(f"{path}: bad PLY header line {raw!r}")
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise CheckpointError(f"{path}: unknown PLY format {fmt!r}")
+    return PlyHeader(fmt, elements, comments, offset)
+
+
+def read_ply_vertices(path: Path) -> tuple[dict[str, np.ndarray], PlyHeader]:
+    """The ``vertex`` element of a PLY file as {property name: ``[N]`` array}, and the header."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise CheckpointError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    header = read_ply_header(path, data)
+    names = [e.name for e in header.elements]
+    if "vertex" not in names:
+        raise CheckpointError(f"{path}: PLY has no 'vertex' element")
+    index = names.index("vertex")
+    vertex = header.elements[index]
+    if any(t == "list" for _, t in vertex.properties):
+        raise CheckpointError(f"{path}: PLY vertex element has list properties; not a splat file")
+    props = [p for p, _ in vertex.properties]
+    if len(set(props)) != len(props):
+        raise CheckpointError(f"{path}: PLY vertex element repeats a property name")
+    if header.format == "ascii":
+        return _read_ascii(path, data, header, index), header
+    before = header.elements[:index]
+    if any(t == "list" for e in before for _, t in e.properties):
+        raise CheckpointError(f"{path}: binary PLY with list properties before the vertex element is not "
+                              f"supported")
+    order = "<" if header.format == "binary_little_endian" else ">"
+
+    def dtype(e: PlyElement) -> np.dtype:
+        return np.dtype([(p, order + t) for p, t in e.properties])
+
+    offset = header.data_offset + sum(dtype(e).itemsize * e.count for e in before)
+    vt = dtype(vertex)
+    need = offset + vt.itemsize * vertex.count
+    if len(data) < need:
+        raise CheckpointError(f"{path}: truncated PLY: {vertex.count} vertices need {need} bytes, the file has "
+                              f"{len(data)}")
+    table = np.frombuffer(data, dtype=vt, count=vertex.count, offset=offset)
+    return {p: table[p].astype(table[p].dtype.newbyteorder("=")) for p in props}, header
+
+
+def _read_ascii(path: Path, data: bytes, header: PlyHeader, index: int) -> dict[str, np.ndarray]:
+    lines = data[header.data_offset:].decode("ascii", errors="replace").splitlines()
+    skip = sum(e.count for e in header.elements[:index])  # one line per item of the elements before
+    vertex = header.elements[index]
+    rows = lines[skip:skip + vertex.count]
+    width = len(vertex.properties)
+    if len(rows) < vertex.count:
+        raise CheckpointError(f"{path}: truncated PLY: expected {vertex.count} vertex lines, found {len(rows)}")
+    try:
+        values = np.array(" ".join(rows).split(), dtype=np.float64)
+    except ValueError:
+        raise CheckpointError(f"{path}: PLY vertex data holds a value that is not a number") from None
+    if values.size != vertex.count * width:
+        raise CheckpointError(f"{path}: PLY vertex lines should hold {width} values each")
+    values = values.reshape(vertex.count, width)
+    return {p: values[:, i].astype(t) for i, (p, t) in enumerate(vertex.properties)}
+
+
+# --- 3DGS columns -------------------------------------------------------------------------------------------
+@dataclass
+class SplatColumns:
+    """Raw 3DGS values of one PLY (float32 tensors).
+
+    Attributes:
+        means: ``[N, 3]``; log_scales: ``[N, 3]``; quats: ``[N, 4]`` w first, unnormalised;
+        opacity_logits: ``[N]``; sh: ``[N, K, 3]`` coefficient-major, K = (sh_degree+1)^2.
+    """
+
+    means: Tensor
+    log_scales: Tensor
+    quats: Tensor
+    opacity_logits: Tensor
+    sh: Tensor
+    sh_degree: int
+    comments: list[str]
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+
+def _numbered(cols: dict[str, np.ndarray], prefix: str) -> list[str]:
+    found = [(int(m.group(1)), k) for k in cols if (m := re.fullmatch(re.escape(prefix) + r"(\d+)", k))]
+    found.sort()
+    if [i for i, _ in found] != list(range(len(found))):
+        raise CheckpointError(f"numbered columns {prefix}* are not 0..{len(found) - 1}")
+    return [k for _, k in found]
+
+
+def splat_columns(path: Path, cols: dict[str, np.ndarray], comments: list[str] | None = None) -> SplatColumns:
+    """Turn PLY vertex columns into raw 3DGS tensors; CheckpointError naming what is missing or wrong."""
+    try:
+        dc, rest = _numbered(cols, COLUMN_PREFIXES["dc"]), _numbered(cols, COLUMN_PREFIXES["rest"])
+        scale, rot = _numbered(cols, COLUMN_PREFIXES["scale"]), _numbered(cols, COLUMN_PREFIXES["rot"])
+    except CheckpointError as exc:
+        raise CheckpointError(f"{path}: {exc}") from None
+    missing = [c for c in ("x", "y", "z", "opacity") if c not in cols]
+    missing += ["f_dc_0..2"] if len(dc) != 3 else []
+    missing += ["scale_0..2"] if len(scale) not in (1, 3) else []
+    missing += ["rot_0..3"] if len(rot) != 4 else []
+    if missing:
+        hint = " (it looks like a plain point cloud, not Gaussian splats)" if {"red", "x"} <= set(cols) else ""
+        raise CheckpointError(f"{path}: not a 3DGS splat PLY: missing {', '.join(missing)}{hint}")
+    if len(rest) % 3:
+        raise CheckpointError(f"{path}: {len(rest)} f_rest columns is not a multiple of 3")
+    try:
+        degree = shmod.sh_degree_from_bases(len(rest) // 3 + 1)
+    except ValueError:
+        raise CheckpointError(f"{path}: {len(rest)} f_rest columns match no SH degree 0..3 (expected 0, 9, 24 "
+                              f"or 45)") from None
+
+    def stack(names: list[str]) -> Tensor:
+        return torch.from_numpy(np.stack([cols[c].astype(np.float32) for c in names], -1))
+
+    n = len(cols["x"])
+    k = (degree + 1) ** 2
+    sh = torch.zeros((n, k, 3), dtype=torch.float32)
+    sh[:, 0] = stack(dc)
+    if k > 1:
+        sh[:, 1:] = stack(rest).reshape(n, 3, k - 1).transpose(1, 2)  # channel-major in the file
+    log_scales = stack(scale)
+    if log_scales.shape[1] == 1:
+        log_scales = log_scales.expand(n, 3).contiguous()
+    out = SplatColumns(means=stack(["x", "y", "z"]), log_scales=log_scales, quats=stack(rot),
+                       opacity_logits=stack(["opacity"])[:, 0], sh=sh, sh_degree=degree, comments=comments or [])
+    for name in ("means", "log_scales", "quats", "opacity_logits", "sh"):
+        require_finite(path, name, getattr(out, name))
+    return out
+
+
+def read_splat_ply(path: Path) -> SplatColumns:
+    """Read a 3DGS PLY file into raw tensors."""
+    cols, header = read_ply_vertices(path)
+    return splat_columns(path, cols, header.comments)
+
+
+def truncate_sh(cols: SplatColumns, record: ImportRecord) -> tuple[Tensor, int]:
+    """SH coefficients at the requested ``--sh-degree`` (never above the file's)."""
+    degree = record.given("sh_degree")
+    if degree is None or degree >= cols.sh_degree:
+        if degree is not None and degree > cols.sh_degree:
+            raise CheckpointError(f"{record.source}: --sh-degree {degree} is above the file's SH degree "
+                                  f"{cols.sh_degree}")
+        return cols.sh, cols.sh_degree
+    return cols.sh[:, : (degree + 1) ** 2].contiguous(), degree
+
+
+# --- readers --------------------------------------------------------------------------------------------------
+def read_ply_model(path: Path, **options) -> Checkpoint:
+    """A single 3DGS PLY as a static `Gaussians4D` (it looks the same at every time)."""
+    record = ImportRecord(Path(path), "ply", check_options(options))
+    cols = read_splat_ply(path)
+    time_range = record.option("time_range", (0.0, 1.0), "a static model; sets the playback range only")
+    background = record.option("background", (0.0, 0.0, 0.0), "3DGS PLY files store no background")
+    sh, degree = truncate_sh(cols, record)
+    model = static_model(cols.means, cols.log_scales, cols.quats, cols.opacity_logits, sh, degree, time_range)
+    record.facts.update(tool="3DGS PLY", sh_degree_in_file=cols.sh_degree)
+    if (path.parent / "deformation.pth").is_file():
+        record.facts["note"] = ("canonical Gaussians of a 4DGaussians/4DGen model; pass the folder to import the "
+                                "animation")
+    record.finish()
+    return Checkpoint(model=model, background=tuple(background), provenance=record.provenance())
+
+
+def has_glob(text: str) -> bool:
+    return globmod.has_magic(text)
+
+
+def sequence_files(path: Path) -> list[Path]:
+    """The per-frame PLY files of a folder or glob pattern, in natural order."""
+    if path.is_dir():
+        files = [p for p in path.iterdir() if p.suffix.lower() == ".ply" and p.is_file()]
+        where = f"folder {path}"
+    else:
+        files = [Path(p) for p in globmod.glob(str(path)) if Path(p).is_file()]
+        where = f"pattern {path}"
+    if not files:
+        raise CheckpointError(f"{where} matches no PLY files")
+    return sorted(files, key=natural_key)
+
+
+def manifest_times(files: list[Path]) -> list[float] | None:
+    """Frame times from the ``manifest.json`` that ``splat4d export ply`` writes next to its frames
+    (``{"frames": [{"time": t, "file": name}, ...]}``), when it lists every file with increasing times."""
+    folders = {f.parent for f in files}
+    manifest = next(iter(folders)) / "manifest.json" if len(folders) == 1 else None
+    if manifest is None or not manifest.is_file():
+        return None
+    try:
+        doc = json.loads(manifest.read_text())
+        table = {str(fr["file"]): float(fr["time"]) for fr in doc["frames"]}
+        times = [table[f.name] for f in files]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    ok = all(math.isfinite(t) for t in times) and all(b > a for a, b in zip(times, times[1:]))
+    return times if ok else None
+
+
+def read_ply_sequence(path: Path, progress: bool | None = None, **options) -> Checkpoint:
+    """Per-frame 3DGS PLYs (a folder or a glob) as `KeyframedGaussians`. Gaussian j of every file is the same
+    Gaussian (same count in every file). Frame times: ``--time-range`` spread evenly (frame i of F at
+    t0 + i (t1 - t0) / (F - 1)); else the times of a ``manifest.json`` from ``splat4d export ply``; else 0..1."""
+    from tqdm import tqdm
+
+    record = ImportRecord(Path(path), "ply-sequence", check_options(options))
+    files = sequence_files(Path(path))
+    listed = manifest_times(files) if record.given("time_range") is None else None
+    if listed is not None:
+        record.facts["times_from"] = "manifest.json"
+        time_range = (listed[0], listed[-1])
+    else:
+        time_range = record.option("time_range", (0.0, 1.0), "frames evenly spaced over it")
+    background = record.option("background", (0.0, 0.0, 0.0), "3DGS PLY files store no background")
+    first = read_splat_ply(files[0])
+    n = len(first)
+    _, degree = truncate_sh(first, record)
+    f = len(files)
+    means = torch.empty((f, n, 3))
+    quats = torch.empty((f, n, 4))
+    scales = torch.empty((f, n, 3))
+    opacities = torch.empty((f, n))
+    sh = torch.empty((f, n, (degree + 1) ** 2, 3))
+    bar = tqdm(files, desc="reading PLY frames", unit="frame", disable=None if progress is None else not progress,
+               file=sys.stderr)
+    for i, file in enumerate(bar):
+        cols = first if i == 0 else read_splat_ply(file)
+        if len(cols) != n:
+            raise CheckpointError(f"{file}: {len(cols)} Gaussians, but {files[0].name} has {n}: every frame of a "
+                                  f"PLY sequence must hold the same Gaussians in the same order")
+        if cols.sh_degree != first.sh_degree:
+            raise CheckpointError(f"{file}: SH degree {cols.sh_degree}, but {files[0].name} has "
+                                  f"{first.sh_degree}")
+        means[i] = cols.means
+        quats[i] = normalize(cols.quats)
+        scales[i] = torch.exp(cols.log_scales)
+        opacities[i] = torch.sigmoid(cols.opacity_logits)
+        sh[i] = cols.sh[:, : sh.shape[2]]
+    if listed is not None:
+        times = torch.tensor(listed, dtype=torch.float32)
+    else:
+        times = torch.linspace(time_range[0], time_range[1], f) if f > 1 else torch.tensor([time_range[0]])
+    model = KeyframedGaussians(times=times, means=means, quats=quats, scales=scales, opacities=opacities, sh=sh,
+                               sh_degree=degree)
+    record.facts.update(tool="3DGS PLY sequence", frames=f, files=[p.name for p in files[:3]] +
+                        (["..."] if f > 3 else []), sh_degree_in_file=first.sh_degree)
+    record.finish()
+    return Checkpoint(model=model, background=tuple(background), provenance=record.provenance())

@@ -1,0 +1,266 @@
+"""What every exporter shares: frame times, per-frame arrays from ``model.slice(t)``, errors and the registry.
+
+Exporters never look inside a model: they call ``model.slice(t)`` (any `Gaussians4D` or `KeyframedGaussians`) at
+the frame times and turn the resulting `Gaussians3D` into the numpy arrays of a `SplatFrame`. Conventions fixed
+here and used by every format:
+
+* Frame i of F is at model time ``t0 + i (t1 - t0) / (F - 1)`` (``t0`` alone when F = 1), where (t0, t1) is the
+  model's ``time_range`` or the ``--start``/``--end`` override; a time outside the model's range is an error.
+* Particle order is the model's order at every frame. A Gaussian that the slice marks invisible (temporal
+  marginal <= TEMPORAL_CULL) keeps its slot with opacity 0, so arrays have the same length N at every frame.
+* Colours for fallbacks (USD displayColor, mesh vertex colours) are the view-independent DC colour
+  ``clip(0.5 + SH_C0 * dc, 0, 1)`` (sRGB-encoded, as the SH of a 3DGS model); `srgb_to_linear` converts it where
+  a format wants linear colour (USD displayColor, glTF COLOR_0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+import torch
+
+from splat4d.constants import RADIUS_SIGMAS
+from splat4d.covariance import decompose_covariance_3d
+from splat4d.errors import ModelError, Splat4DError
+from splat4d.sh import SH_C0, sh_to_rgb
+
+
+class ExportError(Splat4DError):
+    """Bad export arguments (frames, times, options) or an output that cannot be produced."""
+
+
+# --- frame times ---------------------------------------------------------------------------------------------
+
+def frame_times(time_range: tuple[float, float], frames: int, start: float | None = None,
+                end: float | None = None) -> np.ndarray:
+    """``[F]`` float64 model times of the exported frames (see module doc).
+
+    Raises:
+        ExportError: `frames` < 1, start > end, or start/end outside `time_range`.
+    """
+    t0, t1 = float(time_range[0]), float(time_range[1])
+    if int(frames) != frames or frames < 1:
+        raise ExportError(f"--frames must be a positive integer, got {frames}")
+    a = t0 if start is None else float(start)
+    b = t1 if end is None else float(end)
+    # a tiny tolerance so that a user typing the printed range back is not refused for rounding
+    tol = 1e-9 * max(1.0, abs(t0), abs(t1))
+    for name, v in (("--start", a), ("--end", b)):
+        if not np.isfinite(v) or v < t0 - tol or v > t1 + tol:
+            raise ExportError(f"{name} {v:g} is outside the model's time range [{t0:g}, {t1:g}]")
+    if a > b:
+        raise ExportError(f"--start {a:g} is after --end {b:g}")
+    if frames > 1 and a == b:
+        raise ExportError(f"--start equals --end ({a:g}) but {frames} frames were asked for")
+    if frames == 1:
+        return np.array([a], dtype=np.float64)
+    return np.clip(a + (b - a) * np.arange(frames, dtype=np.float64) / (frames - 1), t0, t1)
+
+
+def time_step(times: Sequence[float]) -> float:
+    """Model time between consecutive frames of uniformly spaced `times` (0 for a single frame)."""
+    return (float(times[-1]) - float(times[0])) / (len(times) - 1) if len(times) > 1 else 0.0
+
+
+# --- per-frame arrays ----------------------------------------------------------------------------------------
+
+@dataclass
+class SplatFrame:
+    """The arrays of one exported frame (N = every Gaussian of the model, in model order; all float32).
+
+    Attributes:
+        index: frame number i (also the USD time code).
+        time: model time of the frame.
+        means: ``[N, 3]`` centres.
+        quats: ``[N, 4]`` unit rotations, w first, sign kept in the hemisphere of the previous frame.
+        scales: ``[N, 3]`` linear std-devs along the rotated axes (covariance = R diag(scales)^2 Rᵀ).
+        opacities: ``[N]`` activated opacity in [0, 1] (temporal factor applied); exactly 0 where not visible.
+        sh: ``[N, K, 3]`` spatial SH coefficients at this time, K = (sh_degree + 1)^2, 3DGS order.
+        visible: ``[N]`` bool, the slice's visibility.
+        velocities: ``[N, 3]`` d(mean)/d(model time); zeros when the model has none.
+        radii: ``[N, 3]`` half-extent of each Gaussian's 3-sigma ellipsoid along the world axes, 3 sqrt(diag Σ).
+        sh_degree: spatial SH degree.
+    """
+
+    index: int
+    time: float
+    means: np.ndarray
+    quats: np.ndarray
+    scales: np.ndarray
+    opacities: np.ndarray
+    sh: np.ndarray
+    visible: np.ndarray
+    velocities: np.ndarray
+    radii: np.ndarray
+    sh_degree: int
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    def dc_rgb(self) -> np.ndarray:
+        """``[N, 3]`` view-independent colour in [0, 1] (sRGB-encoded): clip(0.5 + SH_C0 * dc, 0, 1)."""
+        return np.clip(sh_to_rgb(SH_C0 * self.sh[:, 0, :]), 0.0, 1.0)
+
+
+def _numpy(x: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(x.detach().to("cpu", torch.float32).numpy())
+
+
+def slice_frame(model, t: float, index: int = 0, previous: SplatFrame | None = None,
+                _cache: dict | None = None) -> SplatFrame:
+    """Slice `model` at time `t` into a `SplatFrame`.
+
+    `previous` (the frame before) keeps quaternion signs continuous. `_cache` (a dict owned by the caller, e.g.
+    `iter_frames`) remembers the last covariance decomposition: native 4D Gaussians have time-constant conditional
+    covariances, so the eigen-decomposition is done once per export instead of once per frame.
+
+    Raises:
+        ModelError: the slice has non-finite values.
+    """
+    with torch.no_grad():
+        g = model.slice(float(t))
+        cov = g.covariances
+        if g.scales is not None and g.quats is not None:
+            scales, quats = g.scales, g.quats
+        elif _cache is not None and _cache.get("cov") is not None and _cache["cov"].shape == cov.shape \
+                and torch.equal(_cache["cov"], cov):
+            scales, quats = _cache["scales"], _cache["quats"]
+        else:
+            scales, quats = decompose_covariance_3d(cov)
+            if _cache is not None:
+                _cache.update(cov=cov, scales=scales, quats=quats)
+        opacities = torch.where(g.visible, g.opacities, torch.zeros_like(g.opacities))
+        diag = torch.diagonal(cov, dim1=-2, dim2=-1).clamp_min(0)
+        velocities = g.velocities if g.velocities is not None else torch.zeros_like(g.means)
+        arrays = {"means": g.means, "quats": quats, "scales": scales, "opacities": opacities, "sh": g.sh,
+                  "velocities": velocities, "radii": RADIUS_SIGMAS * diag.sqrt()}
+        out = {k: _numpy(v) for k, v in arrays.items()}
+    bad = [k for k, v in out.items() if not np.isfinite(v).all()]
+    if bad:
+        raise ModelError(f"the model gives non-finite {', '.join(bad)} at t={t:g}")
+    if previous is not None and len(previous) == out["quats"].shape[0]:
+        q = out["quats"]  # may share memory with the cached decomposition: never modify it in place
+        out["quats"] = np.where(((q * previous.quats).sum(-1) < 0)[:, None], -q, q)
+    return SplatFrame(index=index, time=float(t), visible=g.visible.detach().cpu().numpy().astype(bool),
+                      sh_degree=int(g.sh_degree), **out)
+
+
+def iter_frames(model, times: Sequence[float], progress: bool = False, desc: str = "frames"
+                ) -> Iterator[SplatFrame]:
+    """Yield the `SplatFrame` of every time in `times` (a tqdm bar when `progress`)."""
+    from tqdm import tqdm
+
+    cache: dict = {}
+    previous = None
+    for i, t in enumerate(tqdm(list(times), desc=desc, unit="frame", disable=not progress, leave=False)):
+        previous = slice_frame(model, t, i, previous, cache)
+        yield previous
+
+
+def with_neighbours(frames: Iterable[SplatFrame]
+                    ) -> Iterator[tuple[SplatFrame | None, SplatFrame, SplatFrame | None]]:
+    """Yield (previous, current, next) over `frames`, None past either end (one frame of look-ahead)."""
+    prev = cur = None
+    for nxt in frames:
+        if cur is not None:
+            yield prev, cur, nxt
+        prev, cur = cur, nxt
+    if cur is not None:
+        yield prev, cur, None
+
+
+def live_near(prev: SplatFrame | None, cur: SplatFrame, nxt: SplatFrame | None) -> np.ndarray:
+    """``[N]`` bool: visible at this frame or at a neighbouring one.
+
+    Between two samples a reader interpolates opacity linearly, so a Gaussian visible at either end is drawn in
+    between; an extent built from these covers everything drawn at any in-between time.
+    """
+    mask = cur.visible.copy()
+    for other in (prev, nxt):
+        if other is not None and len(other) == len(cur):
+            mask |= other.visible
+    return mask
+
+
+def box_of(centres: np.ndarray, half: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """``[2, 3]`` float32 (min, max) of the boxes ``centres ± half`` (``[N, 3]`` each, ``half`` may broadcast) where
+    `mask`; the box of all centres when the mask selects nothing, zeros when there are no centres."""
+    if mask is not None and mask.any():
+        centres = centres[mask]
+        half = half[mask] if np.ndim(half) and np.shape(half)[0] == mask.shape[0] else half
+    elif mask is not None:
+        half = 0.0
+    if centres.shape[0] == 0:
+        return np.zeros((2, 3), np.float32)
+    return np.stack([(centres - half).min(0), (centres + half).max(0)]).astype(np.float32)
+
+
+# --- colour --------------------------------------------------------------------------------------------------
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB decoding of values in [0, 1] (same shape)."""
+    c = np.clip(c, 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def resolve_up_axis(explicit: str | None, provenance: dict | None) -> str:
+    """The up axis to declare: `explicit` ("Y"/"Z") if given, else the checkpoint provenance's ``up_axis``, else Y."""
+    up = str(explicit or (provenance or {}).get("up_axis", "Y")).upper()
+    return up if up in ("Y", "Z") else "Y"
+
+
+# --- sequences on disk ---------------------------------------------------------------------------------------
+
+def frame_file_name(prefix: str, index: int, ext: str) -> str:
+    """``{prefix}_{index:06d}.{ext}``, the name of frame `index` of a per-frame sequence."""
+    return f"{prefix}_{index:06d}.{ext}"
+
+
+def manifest(kind: str, times: Sequence[float], files: Sequence[str], fps: float, **extra) -> bytes:
+    """``manifest.json`` bytes describing a per-frame sequence: the frame -> (time code, model time, file) table,
+    frames per second and whatever conventions the format adds in `extra`."""
+    doc = {"format": kind, "fps": float(fps), "num_frames": len(files),
+           "frames": [{"index": i, "time": float(t), "file": f} for i, (t, f) in enumerate(zip(times, files))],
+           **extra}
+    return (json.dumps(doc, indent=2) + "\n").encode()
+
+
+# --- registry ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Exporter:
+    """One output format of ``splat4d export``.
+
+    Attributes:
+        name: the sub-subcommand (``splat4d export NAME``).
+        help: one line for --help.
+        output: metavar of the output argument (``OUT.usd``, ``OUTDIR``).
+        add_args: adds the format's own options to its argparse parser.
+        run: ``run(model, times, out, args) -> list[Path]`` writes the output (``args`` carries ``fps``, ``force``,
+            ``progress`` and the format's options) and returns the files written.
+    """
+
+    name: str
+    help: str
+    output: str
+    add_args: Callable[[argparse.ArgumentParser], None]
+    run: Callable[..., list[Path]]
+
+
+_EXPORTERS: dict[str, Exporter] = {}
+
+
+def register_exporter(exporter: Exporter) -> Exporter:
+    """Add (or replace, by name) an output format."""
+    _EXPORTERS[exporter.name] = exporter
+    return exporter
+
+
+def exporters() -> dict[str, Exporter]:
+    """Name -> `Exporter` of every registered format (importing `splat4d.export` registers the built-in ones)."""
+    return dict(_EXPORTERS)

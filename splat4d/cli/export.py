@@ -1,0 +1,76 @@
+"""``splat4d export FORMAT CKPT OUT``: OpenUSD, per-frame meshes or per-frame 3DGS PLY (formats from the registry
+in `splat4d.export`)."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 60
+HELP = "export a model to OpenUSD (splats, instancer, points), per-frame meshes or per-frame 3DGS PLY"
+DESCRIPTION = HELP + """.
+
+Frames: frame i of N is at model time t0 + i (t1 - t0) / (N - 1), where [t0, t1] is the model's time range or
+--start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets timeCodesPerSecond.
+Gaussians keep their model order at every frame; those invisible at a frame get opacity 0.
+Run `splat4d export FORMAT --help` for a format's options."""
+
+#: Frames exported when --frames is not given and the model has no keyframes of its own.
+DEFAULT_FRAMES = 48
+
+
+def _add_common(q: argparse.ArgumentParser, output: str) -> None:
+    q.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any imported format)")
+    q.add_argument("out", metavar=output, help="output file or folder")
+    q.add_argument("--frames", type=int, default=None, metavar="N",
+                   help=f"number of frames (default: the keyframe count of a keyframed model, else {DEFAULT_FRAMES})")
+    q.add_argument("--fps", type=float, default=24.0, help="frames per second of the exported sequence (default 24)")
+    q.add_argument("--start", type=float, default=None, metavar="T", help="model time of the first frame (default t0)")
+    q.add_argument("--end", type=float, default=None, metavar="T", help="model time of the last frame (default t1)")
+    q.add_argument("--up-axis", choices=("Y", "Z"), default=None,
+                   help="the model's up axis, written as metadata; data is not rotated (default: the checkpoint's "
+                        "provenance 'up_axis' if recorded, else Y)")
+    q.add_argument("--meters-per-unit", type=float, default=1.0, help="scene units in metres (default 1)")
+    q.add_argument("--force", action="store_true", help="overwrite an existing output")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    from ..export import exporters
+
+    sub = p.add_subparsers(dest="exporter", metavar="FORMAT", required=True)
+    for name, exporter in exporters().items():
+        q = sub.add_parser(name, help=exporter.help, description=exporter.help + ".")
+        _add_common(q, exporter.output)
+        exporter.add_args(q)
+
+
+def _human(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..export import ExportError, exporters, frame_times
+    from ..fileio import check_writable
+    from ..formats import load_model
+
+    check_writable(args.out, args.force)  # refuse before loading anything
+    if not (args.fps > 0 and args.meters_per_unit > 0):
+        raise ExportError(f"--fps and --meters-per-unit must be positive, got {args.fps} and {args.meters_per_unit}")
+    ckpt = load_model(args.checkpoint)
+    model = ckpt.model
+    frames = args.frames if args.frames is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
+    times = frame_times(model.time_range, frames, args.start, args.end)
+    args.provenance = dict(ckpt.provenance or {})
+    args.progress = not args.quiet
+    paths = exporters()[args.exporter].run(model, times, Path(args.out), args)
+    size = sum(p.stat().st_size for p in paths if p.is_file())
+    where = args.out if len(paths) > 1 else paths[0]
+    print(f"wrote {where}: {len(paths)} file{'s' * (len(paths) != 1)}, {_human(size)}, {len(times)} frames "
+          f"(t = {times[0]:g} .. {times[-1]:g}), {len(model):,} Gaussians")
+    return 0

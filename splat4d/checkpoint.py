@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from .errors import CheckpointError, ModelError
-from .fileio import atomic_path
+from .fileio import atomic_write_bytes
 from .model import MODEL_KINDS, Model
 
 FORMAT_NAME = "splat4d"
@@ -79,13 +79,7 @@ def checkpoint_bytes(model: Model, background=(0.0, 0.0, 0.0), provenance: dict 
 def save_checkpoint(path: str | os.PathLike, model: Model, background=(0.0, 0.0, 0.0),
                     provenance: dict | None = None, training: dict | None = None, force: bool = False) -> Path:
     """Write `model` to `path` atomically; refuses to overwrite an existing file unless `force`."""
-    data = checkpoint_bytes(model, background, provenance, training)
-    with atomic_path(path, force) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-    return Path(path)
+    return atomic_write_bytes(path, checkpoint_bytes(model, background, provenance, training), force)
 
 
 def read_metadata(path: str | os.PathLike) -> dict:

@@ -1,1 +1,32 @@
-"""Real-time OpenGL viewer and headless renderer for splat4d models."""
+"""Real-time OpenGL viewer and headless renderer for splat4d models.
+
+* `SplatRenderer` / `render_image`: the moderngl renderer (EGL offscreen or a window's context).
+* `render_frames` / `render_to_file`: headless video and image output.
+* `CameraPath`, `CameraKey`, `path_from_dataset`, `dataset_views`: keyframed camera paths (JSON).
+* `orbit_cameras`, `path_cameras`, `scene_times`, `frame_model`: trajectories and scene-time schedules.
+* `run_app` / `AppOptions`: the glfw + Dear ImGui desktop app (needs a display).
+
+Names are imported on first use, so that ``splat4d --help`` and light submodules stay fast (numba, moderngl, glfw
+and imgui load only when needed). The viewer never imports the trainer.
+"""
+
+import importlib
+
+_EXPORTS = {
+    "camera_path": ("CameraKey", "CameraPath", "DatasetView", "dataset_views", "path_from_dataset"),
+    "headless": ("render_frames", "render_to_file"),
+    "renderer": ("COMPOSITE_ORDERS", "RENDER_MODES", "FrameStats", "RenderSettings", "SplatRenderer",
+                 "headless_context", "render_image"),
+    "sorting": ("AsyncSorter", "SortResult", "depth_order"),
+    "trajectory": ("TIME_MODES", "TRAJECTORIES", "Framing", "frame_model", "orbit_cameras", "path_cameras",
+                   "scene_times"),
+    "app": ("AppOptions", "ViewerApp", "run_app"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

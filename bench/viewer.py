@@ -1,0 +1,131 @@
+"""Frame time of the GL viewer (EGL, offscreen) against the trainer's rasterizer forward pass for the same frame.
+
+    python bench/viewer.py [--json OUT.json] [--cases sample,200k,1m] [--sizes 512x512,1280x720] [--frames N]
+
+Cases: the bundled sample (``build_model("spinner")``, 20,000 Gaussians) and synthetic native 4D models of 200k and
+1M Gaussians (SH degree 3, moving and fading; points in a ball of radius 0.5, std-devs 0.01 x e^(+-0.5), camera at
+distance 1.5 with a 60 degree field of view). Every measured frame has a new camera (2 degrees further round) and
+a new model time, so each one re-sorts, as a playing, orbiting viewer does.
+
+Per case the JSON holds ``n``, ``size``, ``frame_ms`` (median wall time of one frame: sort + pre-pass + draw +
+resolve, GPU finished; read-back excluded), its median split ``sort_ms`` / ``draw_ms``, ``raster_fwd_ms`` (median
+of ``model.slice(t)`` + ``rasterize(...)`` under no_grad, the trainer's way to make the same image) and
+``speedup`` = raster_fwd_ms / frame_ms, plus ``fps``, ``visible`` (after the time / near / frustum culls),
+``drawn`` (after skipping Gaussians hidden behind opaque pixels) and the device. Both are measured in the same run,
+on the same machine and load, so the ratio is the comparable number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+
+
+def synthetic(n: int):
+    from splat4d.viewer.synthetic import synthetic_model
+
+    return synthetic_model(n, seed=0, radius=0.5, scale=0.01, speed=0.2, lifetime=0.35, sh_degree=3)
+
+
+def build_case(name: str):
+    """(model, orbit distance, fov, up) for a case name."""
+    if name == "sample":
+        from splat4d.samples import build_model
+        from splat4d.viewer.trajectory import frame_model
+
+        model = build_model("spinner")
+        framing = frame_model(model)
+        return model, framing.center, framing.distance(40.0), 40.0
+    n = {"200k": 200_000, "1m": 1_000_000}[name]
+    return synthetic(n), (0.0, 0.0, 0.0), 1.5, 60.0
+
+
+def measure(model, center, distance, fov, size, frames: int, raster_frames: int, composite: str) -> dict:
+    import torch
+
+    from splat4d.cameras import orbit
+    from splat4d.train.rasterize import rasterize
+    from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
+
+    w, h = size
+    t0, t1 = model.time_range
+    views = [(orbit(20, 30 + 2 * i, distance, fov, w, h, "z", center), t0 + (t1 - t0) * (0.3 + 0.013 * i))
+             for i in range(frames + 1)]
+    renderer = SplatRenderer(headless_context(), model)
+    settings = RenderSettings(background=(1.0, 1.0, 1.0), composite=composite)
+    renderer.render(*views[0], settings)  # warm-up: shader compile, numba load, targets
+    total, sort, draw, visible, drawn = [], [], [], [], []
+    for cam, t in views[1:]:
+        start = time.perf_counter()
+        s = renderer.render(cam, t, settings)
+        total.append((time.perf_counter() - start) * 1e3)
+        sort.append(s.sort_ms)
+        draw.append(s.draw_ms + s.upload_ms)
+        visible.append(s.visible)
+        drawn.append(s.drawn)
+    renderer.release()
+
+    raster = []
+    with torch.no_grad():
+        cam, t = views[0]
+        rasterize(model.slice(t), cam, (1.0, 1.0, 1.0))  # warm-up (numba kernels)
+        for cam, t in views[1:raster_frames + 1]:
+            start = time.perf_counter()
+            rasterize(model.slice(t), cam, (1.0, 1.0, 1.0))
+            raster.append((time.perf_counter() - start) * 1e3)
+    frame_ms = statistics.median(total)
+    raster_ms = statistics.median(raster)
+    return {"n": len(model), "size": f"{w}x{h}", "frame_ms": round(frame_ms, 2),
+            "sort_ms": round(statistics.median(sort), 2), "draw_ms": round(statistics.median(draw), 2),
+            "raster_fwd_ms": round(raster_ms, 2), "speedup": round(raster_ms / frame_ms, 2),
+            "fps": round(1e3 / frame_ms, 1), "visible": int(statistics.median(visible)),
+            "drawn": int(statistics.median(drawn)),
+            "frames": frames, "raster_frames": len(raster), "composite": composite}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--json", metavar="OUT", help="write results here")
+    ap.add_argument("--cases", default="sample,200k,1m", help="comma-separated: sample, 200k, 1m")
+    ap.add_argument("--sizes", default="512x512,1280x720", help="comma-separated WxH")
+    ap.add_argument("--frames", type=int, default=None, help="GL frames per case (default 15 / 7 / 5 by size of "
+                                                              "model)")
+    ap.add_argument("--composite", default="front-to-back", choices=("front-to-back", "back-to-front"))
+    args = ap.parse_args()
+
+    from splat4d.viewer.options import parse_size
+    from splat4d.viewer.renderer import headless_context
+
+    ctx = headless_context()
+    device = f"{ctx.info['GL_RENDERER']} / {ctx.info['GL_VERSION']}"
+    sizes = [parse_size(s) for s in args.sizes.split(",")]
+    rows = []
+    for name in args.cases.split(","):
+        model, center, distance, fov = build_case(name.strip().lower())
+        frames = args.frames or {"sample": 15, "200k": 7}.get(name, 5)
+        raster_frames = {"sample": 5, "200k": 3}.get(name, 2)
+        for size in sizes:
+            row = {"case": name, **measure(model, center, distance, fov, size, frames, raster_frames,
+                                           args.composite)}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+        del model
+
+    print(f"\n{device} on {platform.processor() or platform.machine()}\n")
+    head = f"{'case':<8}{'N':>10}{'size':>11}{'frame ms':>10}{'sort':>8}{'draw':>9}{'FPS':>7}" \
+           f"{'raster fwd':>12}{'speedup':>9}"
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(f"{r['case']:<8}{r['n']:>10,}{r['size']:>11}{r['frame_ms']:>10.1f}{r['sort_ms']:>8.1f}"
+              f"{r['draw_ms']:>9.1f}{r['fps']:>7.1f}{r['raster_fwd_ms']:>12.1f}{r['speedup']:>8.2f}x")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"device": device, "machine": platform.platform(), "cases": rows}, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,97 @@
+#version 330 core
+// One instanced quad per pre-processed Gaussian (splat_preprocess.glsl output, already back to front).
+// The quad spans the Gaussian's principal axes out to the radius where its alpha falls to ALPHA_THRESHOLD, so every
+// pixel the reference rasterizer would touch is covered. v_uv is the offset from the centre in std-devs
+// (Mahalanobis coordinates, exact under linear interpolation): power = -|uv|^2 / 2.
+// Fragments outside the Gaussian's tile rectangle (i_rect) get alpha 0, as in the reference rasterizer.
+// Output is premultiplied (rgb * alpha, alpha) into a float target cleared to 0, blended either back to front
+// with (ONE, ONE_MINUS_SRC_ALPHA) or front to back with (ONE_MINUS_DST_ALPHA, ONE): both give
+// rgb = sum c_i a_i T_i and alpha = 1 - prod(1 - a_i), the reference compositing. Quads sit at depth 0.5 so that
+// the front-to-back early stop (splat_screen.glsl writes depth 0 over saturated pixels) rejects them there.
+//
+// u_mode: 0 colour, 1 depth (accumulates the expected depth sum z_i a_i T_i), 2 alpha (as colour),
+//         3 ellipse outlines (2 sigma), 4 centres (small discs).
+
+#define MODE_DEPTH 1
+#define MODE_OUTLINES 3
+#define MODE_CENTRES 4
+#define OUTLINE_SIGMAS 2.0
+#define CENTRE_RADIUS_PX 2.0
+
+#if defined VERTEX_SHADER
+
+in vec4 i_geom;   // centre x, y (pixels, y down), radius (std-devs, 0 = culled), depth
+in vec4 i_axes;   // axis 1 xy, axis 2 xy (pixels per std-dev)
+in vec4 i_color;  // rgb, opacity
+in vec4 i_rect;   // tile rectangle x0, y0, x1, y1 (pixels, y down)
+
+uniform vec2 u_size;
+uniform int u_mode;
+
+out vec2 v_uv;
+flat out vec4 v_color;
+flat out float v_depth;
+flat out vec4 v_rect;
+
+void main() {
+    if (i_geom.z <= 0.0) {
+        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // culled: outside the clip volume
+        return;
+    }
+    vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+    vec2 a1 = i_axes.xy;
+    vec2 a2 = i_axes.zw;
+    float radius = i_geom.z;
+    if (u_mode == MODE_OUTLINES) {
+        // reach the 2 sigma ring plus ~2 px for its anti-aliased edge
+        radius = OUTLINE_SIGMAS + 2.0 / max(min(length(a1), length(a2)), 1e-3);
+    } else if (u_mode == MODE_CENTRES) {
+        a1 = vec2(CENTRE_RADIUS_PX, 0.0);
+        a2 = vec2(0.0, CENTRE_RADIUS_PX);
+        radius = 1.5;
+    }
+    vec2 uv = corner * radius;
+    vec2 px = i_geom.xy + a1 * uv.x + a2 * uv.y;
+    gl_Position = vec4(2.0 * px.x / u_size.x - 1.0, 1.0 - 2.0 * px.y / u_size.y, 0.0, 1.0);  // depth 0.5
+    v_uv = uv;
+    v_color = i_color;
+    v_depth = i_geom.w;
+    v_rect = u_mode == MODE_OUTLINES || u_mode == MODE_CENTRES ? vec4(-1e30, -1e30, 1e30, 1e30) : i_rect;
+}
+
+#elif defined FRAGMENT_SHADER
+
+uniform int u_mode;
+uniform float u_height;
+
+in vec2 v_uv;
+flat in vec4 v_color;
+flat in float v_depth;
+flat in vec4 v_rect;
+
+out vec4 f_color;
+
+void main() {
+    float r2 = dot(v_uv, v_uv);
+    if (u_mode == MODE_OUTLINES) {
+        float r = sqrt(r2);
+        float ring = 1.0 - smoothstep(0.0, 1.5 * fwidth(r), abs(r - OUTLINE_SIGMAS));
+        float a = ring * clamp(4.0 * v_color.a, 0.2, 1.0);
+        f_color = vec4(v_color.rgb * a, a);
+        return;
+    }
+    if (u_mode == MODE_CENTRES) {
+        float a = 1.0 - smoothstep(1.0 - fwidth(sqrt(r2)), 1.0, sqrt(r2));
+        f_color = vec4(v_color.rgb * a, a);
+        return;
+    }
+    vec2 pixel = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);  // pixel centre, y down
+    bool inside = all(greaterThanEqual(pixel, v_rect.xy)) && all(lessThan(pixel, v_rect.zw));
+    float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
+    // below the cut-off the fragment adds exactly nothing (cheaper than discard on software rasterizers)
+    alpha = (alpha < ALPHA_THRESHOLD || !inside) ? 0.0 : alpha;
+    vec3 value = u_mode == MODE_DEPTH ? vec3(v_depth) : v_color.rgb;
+    f_color = vec4(value * alpha, alpha);
+}
+
+#endif

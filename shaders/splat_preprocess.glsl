@@ -1,0 +1,174 @@
+#version 330 core
+// Per-Gaussian pre-pass: evaluates each Gaussian at time t and projects it, once per Gaussian (not per quad
+// corner). Drawn as GL_POINTS through an index buffer holding the back-to-front order, with rasterizer discard;
+// transform feedback writes one 48-byte record per drawn index, in that order, for splat_draw.glsl.
+//
+// Math (one place each, mirrored here): splat4d.covariance (conditional mean moving linearly in t, constant
+// conditional covariance, unnormalised temporal marginal and its TEMPORAL_CULL), splat4d.sh (SH degrees 0-3 with
+// cosine time terms, colour = max(SH + 0.5, 0), view direction from the sliced mean), and the trainer's EWA
+// projection (OpenCV camera, Jacobian at x/z, y/z clamped to the image plus (FRUSTUM_CLAMP - 1) tan_fov on each
+// side, + EPS2D px^2, NEAR_PLANE cull), and its footprint rule: the tiles (TILE_SIZE) of the square box of radius
+// ceil(RADIUS_SIGMAS sqrt(lambda_max)) (EIGEN_FLOOR under the discriminant), intersected with the alpha >=
+// ALPHA_THRESHOLD ellipse.
+//
+// Compile-time defines (splat4d.viewer.renderer): SH_DEGREE, SH_DEGREE_T, SH_TEXELS (RGBA texels per Gaussian),
+// SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE. Rendering constants come from splat4d.constants.
+
+#if defined VERTEX_SHADER
+
+in vec4 a_mean_t;   // mean xyz at the temporal mean, temporal mean mu_t
+in vec4 a_motion;   // velocity xyz, 1 / (2 Sigma_tt) (0: no temporal fade)
+in vec4 a_cov_a;    // conditional covariance c00 c01 c02 c11
+in vec4 a_cov_b;    // c12 c22, opacity, sqrt(trace) (unused here)
+
+uniform mat3 u_rot;         // world -> camera rotation (OpenCV axes)
+uniform vec3 u_trans;       // world -> camera translation
+uniform vec3 u_campos;      // camera centre in world space
+uniform vec4 u_intrinsics;  // fx fy cx cy (pixels)
+uniform vec2 u_size;        // image width, height (pixels)
+uniform float u_time;       // model time t
+uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time terms)
+uniform float u_scale;      // splat scale (multiplies every std-dev)
+uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
+uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
+
+out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z
+out vec4 o_axes;   // 2D principal axes scaled by their std-devs (pixels): axis 1 xy, axis 2 xy
+out vec4 o_color;  // rgb, opacity at t
+out vec4 o_rect;   // pixels the reference rasterizer may touch: x0, y0, x1, y1 (tile-aligned, end exclusive)
+
+const float SH_C0 = 0.28209479177387814;
+const float SH_C1 = 0.4886025119029199;
+const float SH_C2[5] = float[5](1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
+                                -1.0925484305920792, 0.5462742152960396);
+const float SH_C3[7] = float[7](-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+                                -0.4570457994644658, 1.445305721320277, -0.5900435899266435);
+const float TWO_PI = 6.283185307179586;
+
+#define SH_BASES ((SH_DEGREE + 1) * (SH_DEGREE + 1))
+
+void cull() {
+    o_geom = vec4(0.0);
+    o_axes = vec4(0.0);
+    o_color = vec4(0.0);
+    o_rect = vec4(0.0);
+}
+
+// Colour of this Gaussian seen along `dir` at tau = mu_t - t (splat4d.sh.collapse_time + eval_sh + sh_to_rgb).
+vec3 sh_color(vec3 dir, float tau) {
+    float c[SH_TEXELS * 4];
+    int base = gl_VertexID * SH_TEXELS;
+    for (int k = 0; k < SH_TEXELS; ++k) {
+        int texel = base + k;
+        vec4 v = texelFetch(u_sh, ivec2(texel % SH_TEX_WIDTH, texel / SH_TEX_WIDTH), 0);
+        c[4 * k] = v.x;
+        c[4 * k + 1] = v.y;
+        c[4 * k + 2] = v.z;
+        c[4 * k + 3] = v.w;
+    }
+    vec3 coef[SH_BASES];
+    for (int j = 0; j < SH_BASES; ++j) {
+        coef[j] = vec3(c[3 * j], c[3 * j + 1], c[3 * j + 2]);
+    }
+#if SH_DEGREE_T > 0
+    for (int n = 1; n <= SH_DEGREE_T; ++n) {
+        float w = cos(TWO_PI * float(n) * tau / u_duration);
+        for (int j = 0; j < SH_BASES; ++j) {
+            int k = 3 * (n * SH_BASES + j);
+            coef[j] += w * vec3(c[k], c[k + 1], c[k + 2]);
+        }
+    }
+#endif
+    vec3 result = SH_C0 * coef[0];
+#if SH_DEGREE >= 1
+    if (u_sh_degree >= 1) {
+        vec3 d = normalize(dir);
+        float x = d.x, y = d.y, z = d.z;
+        result += -SH_C1 * y * coef[1] + SH_C1 * z * coef[2] - SH_C1 * x * coef[3];
+#if SH_DEGREE >= 2
+        if (u_sh_degree >= 2) {
+            float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+            result += SH_C2[0] * xy * coef[4] + SH_C2[1] * yz * coef[5] + SH_C2[2] * (2.0 * zz - xx - yy) * coef[6]
+                    + SH_C2[3] * xz * coef[7] + SH_C2[4] * (xx - yy) * coef[8];
+#if SH_DEGREE >= 3
+            if (u_sh_degree >= 3) {
+                result += SH_C3[0] * y * (3.0 * xx - yy) * coef[9] + SH_C3[1] * xy * z * coef[10]
+                        + SH_C3[2] * y * (4.0 * zz - xx - yy) * coef[11]
+                        + SH_C3[3] * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * coef[12]
+                        + SH_C3[4] * x * (4.0 * zz - xx - yy) * coef[13] + SH_C3[5] * z * (xx - yy) * coef[14]
+                        + SH_C3[6] * x * (xx - 3.0 * yy) * coef[15];
+            }
+#endif
+        }
+#endif
+    }
+#endif
+    return max(result + 0.5, vec3(0.0));
+}
+
+void main() {
+    // --- the 4D Gaussian at time t (splat4d.covariance.condition_on_time / temporal_marginal) -----------------
+    float dt = u_time - a_mean_t.w;
+    float marginal = exp(-dt * dt * a_motion.w);
+    if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
+    float opacity = a_cov_b.z * marginal;
+    if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
+    vec3 mean = a_mean_t.xyz + a_motion.xyz * dt;
+
+    // --- EWA projection ---------------------------------------------------------------------------------------
+    vec3 p = u_rot * mean + u_trans;
+    if (!(p.z > NEAR_PLANE)) { cull(); return; }
+    float fx = u_intrinsics.x, fy = u_intrinsics.y;
+    float cx = u_intrinsics.z, cy = u_intrinsics.w;
+    float slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.x / fx;
+    float slack_y = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.y / fy;
+    float tx = p.z * clamp(p.x / p.z, -(cx / fx + slack_x), (u_size.x - cx) / fx + slack_x);
+    float ty = p.z * clamp(p.y / p.z, -(cy / fy + slack_y), (u_size.y - cy) / fy + slack_y);
+    float iz = 1.0 / p.z;
+    vec3 j0 = vec3(fx * iz, 0.0, -fx * tx * iz * iz);
+    vec3 j1 = vec3(0.0, fy * iz, -fy * ty * iz * iz);
+    // rows of J R (R = world -> camera rotation)
+    vec3 t0 = j0 * u_rot;
+    vec3 t1 = j1 * u_rot;
+    float s2 = u_scale * u_scale;
+    mat3 cov = s2 * mat3(a_cov_a.x, a_cov_a.y, a_cov_a.z,
+                         a_cov_a.y, a_cov_a.w, a_cov_b.x,
+                         a_cov_a.z, a_cov_b.x, a_cov_b.y);
+    vec3 ct0 = cov * t0;
+    float a = dot(t0, ct0) + EPS2D;
+    float b = dot(t1, ct0);
+    float c = dot(t1, cov * t1) + EPS2D;
+    float det = a * c - b * b;
+    if (!(det > 0.0)) { cull(); return; }
+
+    // principal axes of the 2D covariance: lambda1 >= lambda2 > 0
+    float mid = 0.5 * (a + c);
+    float disc = sqrt(max(mid * mid - det, 0.0));
+    float l1 = mid + disc;
+    float l2 = det / l1;
+    vec2 e1 = vec2(b, l1 - a);
+    float len1 = length(e1);
+    e1 = len1 > 1e-12 * l1 ? e1 / len1 : (a >= c ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
+    vec2 e2 = vec2(-e1.y, e1.x);
+    vec2 axis1 = e1 * sqrt(l1);
+    vec2 axis2 = e2 * sqrt(l2);
+
+    // footprint: alpha = o exp(-r^2 / 2) >= ALPHA_THRESHOLD exactly inside r^2 = 2 ln(o / ALPHA_THRESHOLD)
+    float radius = sqrt(2.0 * log(opacity / ALPHA_THRESHOLD));
+    vec2 centre = vec2(fx * p.x * iz + cx, fy * p.y * iz + cy);
+    // the reference's square box (radius in whole pixels) and the tiles it touches
+    float box = ceil(RADIUS_SIGMAS * sqrt(mid + sqrt(max(EIGEN_FLOOR, mid * mid - det))));
+    vec2 half_box = min(vec2(box), radius * sqrt(vec2(a, c)) + 1.0);
+    vec2 lo = centre - half_box, hi = centre + half_box;
+    if (any(lessThanEqual(centre + box, vec2(0.0))) || any(greaterThanEqual(centre - box, u_size))
+        || any(lessThan(hi, vec2(0.0))) || any(greaterThan(lo, u_size))) {
+        cull();
+        return;
+    }
+    o_geom = vec4(centre, max(radius, 1e-6), p.z);
+    o_axes = vec4(axis1, axis2);
+    o_color = vec4(sh_color(mean - u_campos, -dt), opacity);
+    o_rect = vec4(floor(lo / float(TILE_SIZE)), ceil(hi / float(TILE_SIZE))) * float(TILE_SIZE);
+}
+
+#endif

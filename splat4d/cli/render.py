@@ -1,0 +1,140 @@
+"""``splat4d render CKPT --out FILE``: render a model to video or images through EGL, with no display."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 45
+HELP = "render a model to an .mp4, PNG/EXR frames or one image, headless (orbit, spiral or camera path)"
+DESCRIPTION = """Render a model offscreen (EGL; no display needed) along a camera trajectory.
+
+Output by name: FILE.mp4 (H.264), FILE.png / FILE.exr (one image; EXR keeps alpha), or a folder name without a
+suffix (numbered frames, --image-format png|exr). Existing outputs are kept unless --force.
+
+examples:
+  splat4d render model.safetensors --out orbit.mp4
+  splat4d render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
+  splat4d render model.safetensors --out frames --image-format exr --background transparent --frames 48
+  splat4d render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
+  splat4d render model.safetensors --out tour.mp4 --path tour.json
+  splat4d render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
+"""
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    from splat4d.viewer.options import argtype, parse_size, parse_vector
+
+    p.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any importable format)")
+    p.add_argument("--out", "-o", required=True, metavar="FILE",
+                   help="output: .mp4, .png, .exr, or a folder name for a frame sequence")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    g = p.add_argument_group("frames")
+    g.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
+                   help="image size in pixels (default 1280x720; even for .mp4)")
+    g.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    g.add_argument("--frames", type=int, default=None,
+                   help="number of frames (default: --seconds x --fps, or the whole camera path)")
+    g.add_argument("--seconds", type=float, default=4.0, help="video length for orbit/spiral (default 4)")
+    g.add_argument("--image-format", choices=("png", "exr"), default="png", help="format of a frame folder")
+    g.add_argument("--crf", type=int, default=18, help="H.264 quality, 0 (lossless) .. 51 (default 18)")
+    c = p.add_argument_group("camera")
+    c.add_argument("--trajectory", choices=("orbit", "spiral", "path"), default=None,
+                   help="camera motion (default orbit; path when --path or --cameras is given)")
+    c.add_argument("--path", metavar="JSON", help="keyframed camera path file (see docs/viewer.md)")
+    c.add_argument("--cameras", metavar="DATASET",
+                   help="use the cameras of a training dataset (D-NeRF layout folder or transforms json) as path")
+    c.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
+    c.add_argument("--seconds-per-key", type=float, default=0.5,
+                   help="seconds between dataset cameras for --cameras (default 0.5)")
+    c.add_argument("--elevation", type=float, default=20.0, help="orbit elevation in degrees (default 20)")
+    c.add_argument("--azimuth", type=float, default=0.0, help="starting azimuth in degrees (default 0)")
+    c.add_argument("--amplitude", type=float, default=25.0,
+                   help="spiral: elevation swing in degrees around --elevation (default 25)")
+    c.add_argument("--turns", type=float, default=1.0, help="full turns around the object (default 1)")
+    c.add_argument("--distance", type=float, default=None, help="camera distance (default: frame the model)")
+    c.add_argument("--target", type=argtype(lambda s: parse_vector(s, 3, "target")), default=None,
+                   metavar="X,Y,Z", help="point to orbit around (default: centre of the model)")
+    c.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
+    c.add_argument("--up", default="z", choices=("x", "y", "z", "-x", "-y", "-z"), help="world up axis (default z)")
+    t = p.add_argument_group("scene time")
+    t.add_argument("--time-mode", choices=("loop", "timelapse", "hold", "path"), default=None,
+                   help="loop: the animation repeats every --loop-seconds; timelapse: one pass over the whole "
+                        "video; hold: a fixed --time; path: the camera path's scene_time keys (default: path "
+                        "when the path has them, hold with --time, else loop)")
+    t.add_argument("--time", type=float, default=None, help="model time for --time-mode hold")
+    t.add_argument("--loop-seconds", type=float, default=2.0,
+                   help="video seconds per pass through the time range in loop mode (default 2)")
+    s = p.add_argument_group("look")
+    s.add_argument("--background", default=None,
+                   help="white, black, grey, transparent, #rrggbb or r,g,b (default: the checkpoint's)")
+    s.add_argument("--mode", default="color", help="color, depth, alpha, outlines or centers (default color)")
+    s.add_argument("--sh-degree", type=int, default=None, help="render at a lower SH degree")
+    s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
+    s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
+                   help="blending order (same image; front-to-back stops saturated pixels early)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from splat4d.errors import CameraError
+    from splat4d.formats import load_model
+    from splat4d.viewer.camera_path import CameraPath, path_from_dataset
+    from splat4d.viewer.headless import render_to_file
+    from splat4d.viewer.options import OptionError, parse_background
+    from splat4d.viewer.renderer import RenderSettings
+    from splat4d.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
+                                           scene_times)
+
+    if not args.fps > 0:
+        raise OptionError(f"--fps must be positive, got {args.fps}")
+    if args.frames is not None and args.frames < 1:
+        raise OptionError(f"--frames must be at least 1, got {args.frames}")
+    if args.path and args.cameras:
+        raise OptionError("give either --path or --cameras, not both")
+    if not 0 < args.fov < 180:
+        raise OptionError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+    bg, transparent = parse_background(args.background)
+    ckpt = load_model(args.checkpoint)
+    model = ckpt.model
+    settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
+                              background=bg if bg is not None else ckpt.background, transparent=transparent,
+                              composite=args.composite)
+    width, height = args.size
+
+    trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")
+    path = None
+    if trajectory == "path":
+        if args.path:
+            path = CameraPath.load(args.path)
+        elif args.cameras:
+            path = path_from_dataset(args.cameras, args.split, args.seconds_per_key, args.up)
+        else:
+            raise OptionError("--trajectory path needs --path FILE or --cameras DATASET")
+        frames = args.frames or path_frame_count(path, args.fps)
+        cameras = path_cameras(path, frames, args.fps, width, height)
+    else:
+        frames = args.frames or max(1, int(round(args.seconds * args.fps)))
+        framing = frame_model(model)
+        target = framing.center if args.target is None else args.target
+        distance = args.distance or framing.distance(args.fov)
+        cameras = orbit_cameras(frames, width, height, target, distance, args.elevation, args.fov, args.up,
+                                args.turns, args.azimuth, args.amplitude if trajectory == "spiral" else 0.0)
+
+    mode = args.time_mode
+    if mode is None:
+        mode = ("path" if path is not None and path.has_scene_time else "hold" if args.time is not None
+                else "loop")
+    if args.time is not None and mode != "hold":
+        raise OptionError(f"--time sets the held time; it does not apply to --time-mode {mode}")
+    times = scene_times(mode, frames, args.fps, model.time_range, args.loop_seconds, args.time, path)
+    if mode == "path" and path is None:
+        raise CameraError("--time-mode path needs --path or --cameras")
+
+    summary = render_to_file(model, args.out, cameras, times, settings, args.fps, args.image_format, args.force,
+                             progress=False if args.quiet else "render", crf=args.crf)
+    mean = lambda xs: sum(xs) / max(len(xs), 1)  # noqa: E731
+    print(f"wrote {args.out}: {summary.frames} frame(s) {width}x{height}"
+          + (f" at {args.fps:g} fps" if summary.frames > 1 else "")
+          + f", {len(model):,} Gaussians, mean sort {mean(summary.sort_ms):.1f} ms + draw "
+            f"{mean(summary.draw_ms):.1f} ms per frame")
+    return 0

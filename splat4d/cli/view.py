@@ -1,0 +1,85 @@
+"""``splat4d view CKPT``: the interactive desktop viewer (glfw window + Dear ImGui panel)."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 40
+HELP = "open a model in the interactive viewer (play/scrub time, orbit/fly, render modes, camera paths)"
+DESCRIPTION = """Open a model in a window with a Dear ImGui control panel.
+
+mouse: left drag orbit (look in fly mode), right/middle drag pan, wheel zoom
+keys:  W/A/S/D/Q/E fly (Shift: faster), Space play/pause, R reset view, F fly mode, P screenshot, Esc quit
+Drop a model file on the window to open it. Needs a display (run under Xvfb on a server).
+
+examples:
+  splat4d view model.safetensors
+  splat4d view model.safetensors --cameras data/spinner --background white
+  splat4d view model.safetensors --path tour.json --paused --time 0.25
+"""
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    from splat4d.viewer.options import argtype, parse_size
+
+    p.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any importable format)")
+    p.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
+                   help="window size (default 1280x720)")
+    p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
+    p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
+    p.add_argument("--background", default=None, help="white, black, grey, #rrggbb or r,g,b (default: the checkpoint's)")
+    p.add_argument("--mode", default="color", help="color, depth, alpha, outlines or centers (default color)")
+    p.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
+    p.add_argument("--sh-degree", type=int, default=None, help="display at a lower SH degree")
+    p.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
+                   help="blending order (default front-to-back)")
+    p.add_argument("--paused", action="store_true", help="start with playback paused")
+    p.add_argument("--time", type=float, default=None, help="model time to start at (default: mid-range)")
+    p.add_argument("--loop-seconds", type=float, default=2.0,
+                   help="seconds per pass through the time range at speed 1 (default 2)")
+    p.add_argument("--cameras", metavar="DATASET", help="training dataset whose cameras can be snapped to")
+    p.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
+    p.add_argument("--path", metavar="JSON", help="camera path to load (play it from the panel)")
+    p.add_argument("--screenshot-dir", default=".", help="folder for screenshots taken with P (default .)")
+    p.add_argument("--no-vsync", action="store_true", help="draw as fast as possible")
+    a = p.add_argument_group("automation (scripted captures, tests)")
+    a.add_argument("--exit-after", type=int, default=None, metavar="FRAMES", help="close after this many frames")
+    a.add_argument("--screenshot", metavar="PNG", help="with --exit-after: save the last frame here")
+    a.add_argument("--report", metavar="JSON", help="write frame count, times and the screenshot's camera here")
+    a.add_argument("--force", action="store_true", help="overwrite an existing --screenshot file")
+
+
+def run(args: argparse.Namespace) -> int:
+    from splat4d.fileio import check_writable
+    from splat4d.formats import load_model
+    from splat4d.viewer.app import AppOptions, run_app
+    from splat4d.viewer.camera_path import CameraPath, dataset_views
+    from splat4d.viewer.options import OptionError, parse_background
+    from splat4d.viewer.renderer import RenderSettings
+
+    bg, transparent = parse_background(args.background)
+    if transparent:
+        raise OptionError("the window cannot show a transparent background; use `splat4d render` for alpha output")
+    if args.screenshot and args.exit_after is None:
+        raise OptionError("--screenshot needs --exit-after (press P for screenshots while viewing)")
+    if args.exit_after is not None and args.exit_after < 1:
+        raise OptionError(f"--exit-after must be at least 1, got {args.exit_after}")
+    if args.screenshot:
+        check_writable(args.screenshot, args.force)
+    look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
+                          composite=args.composite, background=bg or (0.0, 0.0, 0.0))
+    options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
+                         play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
+                         split=args.split, camera_path=args.path, screenshot_dir=args.screenshot_dir,
+                         vsync=not args.no_vsync, exit_after=args.exit_after, screenshot=args.screenshot,
+                         report=args.report, force=args.force)
+    # fail with a one-line error before opening a window
+    if args.path:
+        CameraPath.load(args.path)
+    if args.cameras:
+        dataset_views(args.cameras, args.split)
+    ckpt = load_model(args.checkpoint)
+    report = run_app(ckpt, options)
+    if args.exit_after is not None:
+        print(f"drew {report['frames']} frame(s); time {report['time_start']:.3f} -> {report['time_end']:.3f}")
+    return 0

@@ -1,0 +1,118 @@
+"""The desktop app under Xvfb: it starts, draws frames, plays time, and its screenshot is neither empty nor
+different from the headless (EGL) render of the same view."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from splat4d.cameras import Camera, orbit
+from splat4d.checkpoint import save_checkpoint
+from splat4d.viewer.camera_path import CameraKey, CameraPath
+from splat4d.viewer.renderer import RenderSettings, render_image
+from splat4d.viewer.synthetic import synthetic_model
+
+
+@pytest.fixture(scope="module")
+def display():
+    """A private Xvfb server on a free display number (started here, stopped after the module)."""
+    xvfb = shutil.which("Xvfb")
+    assert xvfb, "Xvfb is not installed (apt-get install -y xvfb)"
+    for n in range(97, 200):
+        if not (Path(f"/tmp/.X{n}-lock").exists() or Path(f"/tmp/.X11-unix/X{n}").exists()):
+            break
+    proc = subprocess.Popen([xvfb, f":{n}", "-screen", "0", "640x480x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10.0
+    while not Path(f"/tmp/.X11-unix/X{n}").exists():
+        assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
+        time.sleep(0.05)
+    yield f":{n}"
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    root = tmp_path_factory.mktemp("app")
+    model = synthetic_model(3000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
+    ckpt = save_checkpoint(root / "model.safetensors", model, background=(1.0, 1.0, 1.0))
+    cams = [orbit(20, a, 2.0, fov_deg=40, width=64, height=64) for a in (0, 90)]
+    frames = [{"file_path": f"./train/r_{i}", "time": 0.5 * i, "transform_matrix": c.to_opengl_c2w().tolist()}
+              for i, c in enumerate(cams)]
+    (root / "transforms_train.json").write_text(json.dumps({"camera_angle_x": cams[0].fov_x, "w": 64, "h": 64,
+                                                            "frames": frames}))
+    CameraPath([CameraKey.from_camera(0.0, cams[0], 0.0), CameraKey.from_camera(1.0, cams[1], 1.0)]).save(
+        root / "path.json")
+    return root, model, ckpt
+
+
+def run_view(display: str, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "DISPLAY": display}
+    return subprocess.run([sys.executable, "-m", "splat4d", "view", *args], env=env, capture_output=True, text=True,
+                          timeout=120)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 100.0 if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+def headless_of(report: dict, model) -> np.ndarray:
+    """The EGL render of the view a screenshot recorded, quantised like the window's 8-bit framebuffer."""
+    shot = report["screenshot"]
+    c = shot["camera"]
+    cam = Camera(np.array(c["c2w"]), c["fx"], c["fy"], c["cx"], c["cy"], c["width"], c["height"])
+    img = render_image(model, cam, shot["time"], RenderSettings(mode=shot["mode"], background=shot["background"],
+                                                                splat_scale=shot["splat_scale"]))
+    return np.round(np.clip(img[..., :3], 0, 1) * 255) / 255
+
+
+def read_shot(path) -> np.ndarray:
+    return cv2.imread(str(path))[..., ::-1].astype(np.float64) / 255
+
+
+def test_app_draws_plays_and_screenshots_like_headless(display, files):
+    root, model, ckpt = files
+    shot, report_path = root / "shot.png", root / "report.json"
+    proc = run_view(display, str(ckpt), "--size", "200x150", "--exit-after", "12", "--screenshot", str(shot),
+                    "--report", str(report_path), "--cameras", str(root), "--path", str(root / "path.json"))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    assert report["frames"] == 12
+    assert report["time_end"] != report["time_start"]  # time played
+    assert report["sorts"] >= 1
+    img = read_shot(shot)
+    assert img.shape == (150, 200, 3)
+    background = np.all(img > 0.99, axis=-1)
+    assert 0.02 < (~background).mean() < 0.9 and img.std() > 0.05  # neither empty nor all splat
+    assert psnr(img, headless_of(report, model)) >= 40.0
+
+
+def test_app_paused_depth_view_and_no_display(display, files, tmp_path):
+    root, model, ckpt = files
+    shot, report_path = tmp_path / "depth.png", tmp_path / "report.json"
+    proc = run_view(display, str(ckpt), "--size", "120x90", "--exit-after", "3", "--paused", "--time", "0.25",
+                    "--mode", "depth", "--screenshot", str(shot), "--report", str(report_path))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    assert report["time_start"] == report["time_end"] == 0.25
+    assert psnr(read_shot(shot), headless_of(report, model)) >= 40.0
+    # an existing screenshot is not overwritten, and no display is a one-line error
+    again = run_view(display, str(ckpt), "--exit-after", "1", "--screenshot", str(shot))
+    assert again.returncode == 1 and "already exists" in again.stderr
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    headless = subprocess.run([sys.executable, "-m", "splat4d", "view", str(ckpt), "--exit-after", "1"], env=env,
+                              capture_output=True, text=True, timeout=60)
+    assert headless.returncode == 1
+    assert headless.stderr.strip().startswith("splat4d view: error:") and "Traceback" not in headless.stderr

@@ -1,0 +1,60 @@
+"""The desktop app's camera rig and timeline (pure math, no window)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from splat4d.cameras import look_at, orbit
+from splat4d.viewer.controls import CameraController, Playback
+from splat4d.viewer.trajectory import Framing
+
+
+def test_orbit_pan_zoom_fly_and_snap():
+    c = CameraController(target=np.array([0.0, 0.0, 0.5]), distance=3.0, azimuth=30, elevation=20)
+    cam = c.camera(64, 48)
+    np.testing.assert_allclose(cam.c2w, look_at(c.eye, c.target, "z", 40.0, 64, 48).c2w)
+    c.orbit(100, -50)
+    assert np.linalg.norm(c.eye - c.target) == pytest.approx(3.0)  # orbiting keeps the distance ...
+    assert c.azimuth == pytest.approx(0.0) and c.elevation == pytest.approx(5.0)  # ... and turns by the drag
+    c.orbit(0, 1e4)
+    assert c.elevation == 89.0  # never over the pole
+    before = c.eye - c.target
+    c.pan(10, 0, 48)
+    np.testing.assert_allclose(c.eye - c.target, before)  # panning moves eye and target together
+    c.zoom(2)
+    assert c.distance == pytest.approx(3.0 * 0.81)
+    eye, target = c.eye, c.target.copy()
+    _, _, forward = c.basis()
+    c.fly(1, 0, 0, dt=0.5, speed=2.0)
+    np.testing.assert_allclose(c.eye - eye, forward, atol=1e-9)
+    np.testing.assert_allclose(c.target - target, forward, atol=1e-9)
+    look_dir = c.target - c.eye
+    c.look(20, 0)  # fly mode: turn in place
+    np.testing.assert_allclose(c.eye, eye + forward, atol=1e-9)
+    assert not np.allclose(c.target - c.eye, look_dir)
+    # snapping shows a camera exactly, roll included; the next drag continues from its viewpoint
+    snapped = orbit(10, 200, 2.0, fov_deg=55, width=64, height=48)
+    c.snap(snapped)
+    np.testing.assert_allclose(c.camera(64, 48).c2w, snapped.c2w)
+    assert c.camera(64, 48).fy == pytest.approx(snapped.fy)
+    c.orbit(0, 0)
+    assert c.exact_c2w is None
+    np.testing.assert_allclose(c.eye, snapped.position, atol=1e-9)
+    np.testing.assert_allclose(c.camera(64, 48).forward, snapped.forward, atol=1e-9)
+    c.reset(Framing(np.array([1.0, 2.0, 3.0]), 0.5))
+    np.testing.assert_allclose(c.target, [1.0, 2.0, 3.0])
+    assert c.distance == pytest.approx(1.1 * 0.5 / np.sin(np.radians(20.0)))
+
+
+def test_playback_loops_stops_and_pauses():
+    p = Playback(time_range=(0.0, 2.0), time=1.5, loop_seconds=2.0)
+    assert p.advance(0.75) == pytest.approx(0.25)  # 0.75 s of 2 s per pass over a range of 2 -> +0.75, wraps
+    p.speed = 2.0
+    assert p.advance(0.25) == pytest.approx(0.75)
+    p.loop = False
+    p.advance(10.0)
+    assert p.time == 2.0 and not p.playing  # stops at the end
+    assert p.advance(1.0) == 2.0
+    p.set_range((0.0, 1.0))
+    assert p.time == 1.0

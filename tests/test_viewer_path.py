@@ -1,0 +1,146 @@
+"""Camera path files: round trip, interpolation through the keys, looping, errors, dataset import, trajectories."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from splat4d.cameras import look_at, look_at_c2w, orbit
+from splat4d.errors import CameraError, OutputExistsError
+from splat4d.viewer.camera_path import CameraKey, CameraPath, dataset_views, path_from_dataset
+from splat4d.viewer.trajectory import orbit_cameras, path_frame_count, scene_times
+
+
+def sample_path(loop: bool = False) -> CameraPath:
+    data = {
+        "format": "splat4d-camera-path", "version": 1, "up": "z", "loop": loop,
+        "keyframes": [
+            {"time": 0.0, "position": [3.0, 0.0, 1.0], "look_at": [0.0, 0.0, 0.0], "fov": 40.0, "scene_time": 0.0},
+            {"time": 1.5, "position": [0.0, 3.0, 1.5], "look_at": [0.0, 0.0, 0.2], "fov": 30.0, "scene_time": 0.5},
+            {"time": 2.0, "position": [-3.0, 0.5, 0.5], "look_at": [0.0, 0.0, 0.0], "fov": 50.0,
+             "scene_time": 0.6},
+            {"time": 4.0, "position": [0.0, -3.0, 2.0],
+             "quaternion": CameraKey.from_camera(0, look_at((0, -3, 2), (0.1, 0, 0))).quaternion.tolist(),
+             "fov": 45.0, "scene_time": 1.0},
+        ],
+    }
+    return CameraPath.from_json(data)
+
+
+def test_path_file_round_trips(tmp_path):
+    path = sample_path()
+    f = tmp_path / "path.json"
+    path.save(f)
+    again = CameraPath.load(f)
+    assert again.to_json() == path.to_json()
+    assert json.loads(f.read_text())["keyframes"][0]["look_at"] == [0.0, 0.0, 0.0]
+    with pytest.raises(OutputExistsError):
+        path.save(f)
+    path.save(f, force=True)
+    for t in np.linspace(-0.5, 4.5, 23):
+        np.testing.assert_allclose(again.pose(t)[0], path.pose(t)[0], atol=1e-12)
+
+
+def test_interpolation_passes_through_the_keys():
+    path = sample_path()
+    for key in path.keys:
+        c2w, fov = path.pose(key.time)
+        np.testing.assert_allclose(c2w[:3, 3], key.position, atol=1e-9)
+        np.testing.assert_allclose(c2w[:3, :3], key.c2w()[:3, :3], atol=1e-9)
+        assert fov == pytest.approx(key.fov)
+        assert path.scene_time(key.time) == pytest.approx(key.scene_time)
+    # look-at keys look at their target
+    k1 = path.keys[1]
+    np.testing.assert_allclose(k1.c2w()[:3, :3], look_at_c2w(k1.position, k1.look_at, "z")[:3, :3], atol=1e-9)
+    # C1 at the inner keys: the velocity just before equals the velocity just after
+    eps = 1e-6
+    for key in path.keys[1:-1]:
+        p = [path.pose(key.time + d)[0][:3, 3] for d in (-eps, 0.0, eps)]
+        np.testing.assert_allclose((p[1] - p[0]) / eps, (p[2] - p[1]) / eps, rtol=1e-3, atol=1e-3)
+    # between keys: orthonormal rotation, linear scene time
+    rot = path.pose(0.7)[0][:3, :3]
+    np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-9)
+    assert path.scene_time(1.75) == pytest.approx(0.55)
+    # the held ends of an open path
+    np.testing.assert_allclose(path.pose(-1.0)[0], path.pose(0.0)[0])
+    np.testing.assert_allclose(path.pose(9.0)[0], path.pose(4.0)[0])
+
+
+def test_looping_path_closes_smoothly():
+    path = sample_path(loop=True)
+    assert path.duration == pytest.approx(4.0 + 4.0 / 3.0)
+    np.testing.assert_allclose(path.pose(path.duration)[0], path.pose(0.0)[0], atol=1e-9)
+    eps = 1e-4
+    v_end = (path.pose(path.duration)[0][:3, 3] - path.pose(path.duration - eps)[0][:3, 3]) / eps
+    v_start = (path.pose(eps)[0][:3, 3] - path.pose(0.0)[0][:3, 3]) / eps
+    np.testing.assert_allclose(v_end, v_start, rtol=1e-2, atol=1e-2)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["keyframes"].clear(), "non-empty"),
+    (lambda d: d["keyframes"][1].update(time=0.0), "strictly increasing"),
+    (lambda d: d["keyframes"][0].pop("look_at"), "exactly one of"),
+    (lambda d: d["keyframes"][0].update(position=[1, 2]), "position must be 3"),
+    (lambda d: d["keyframes"][0].update(fov=200), "fov"),
+    (lambda d: d["keyframes"][0].update(fov=float("nan")), "finite"),
+    (lambda d: d.update(up="w"), "up"),
+    (lambda d: d.update(format="other"), "not a splat4d camera path"),
+])
+def test_bad_path_files_raise_one_line_errors(tmp_path, edit, message):
+    data = sample_path().to_json()
+    edit(data)
+    f = tmp_path / "bad.json"
+    f.write_text(json.dumps(data))
+    with pytest.raises(CameraError, match=message) as info:
+        CameraPath.load(f)
+    assert "\n" not in str(info.value)
+    (tmp_path / "junk.json").write_text("{not json")
+    with pytest.raises(CameraError, match="not a readable JSON"):
+        CameraPath.load(tmp_path / "junk.json")
+
+
+def test_dataset_cameras_become_a_path(tmp_path):
+    cams = [orbit(30, a, 4.0, fov_deg=35, width=64, height=48) for a in (0, 120, 240)]
+    frames = [{"file_path": f"./train/r_{i:03d}", "time": t, "transform_matrix": c.to_opengl_c2w().tolist()}
+              for i, (c, t) in enumerate(zip(cams, (0.5, 0.0, 1.0)))]
+    meta = {"camera_angle_x": cams[0].fov_x, "w": 64, "h": 48, "frames": frames}
+    (tmp_path / "transforms_train.json").write_text(json.dumps(meta))
+    views = dataset_views(tmp_path)
+    assert [v.time for v in views] == [0.5, 0.0, 1.0]
+    np.testing.assert_allclose(views[0].camera.c2w, cams[0].c2w, atol=1e-9)
+    assert views[0].camera.fy == pytest.approx(cams[0].fy)
+    path = path_from_dataset(tmp_path, seconds_per_key=2.0)
+    assert [k.scene_time for k in path.keys] == [0.0, 0.5, 1.0]  # ordered by frame time
+    for key, cam in zip(path.keys, (cams[1], cams[0], cams[2])):
+        got = path.camera(key.time, 64, 48)
+        np.testing.assert_allclose(got.c2w, cam.c2w, atol=1e-9)
+        assert got.fy == pytest.approx(cam.fy)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CameraError, match="transforms_train.json"):
+        dataset_views(tmp_path / "empty", "train")
+
+
+def test_trajectories_and_time_modes():
+    cams = orbit_cameras(8, 64, 48, (0, 0, 0.5), 3.0, elevation=20, fov=40, turns=1)
+    assert len(cams) == 8 and all(c.width == 64 for c in cams)
+    assert all(np.linalg.norm(c.position - np.array([0, 0, 0.5])) == pytest.approx(3.0) for c in cams)
+    spiral = orbit_cameras(8, 64, 48, (0, 0, 0), 3.0, elevation=20, amplitude=15)
+    heights = [c.position[2] for c in spiral]
+    assert heights[0] == pytest.approx(3.0 * math.sin(math.radians(5)))
+    assert max(heights) == pytest.approx(3.0 * math.sin(math.radians(35)))
+    fps = 10
+    loop = scene_times("loop", 30, fps, (0.0, 1.0), loop_seconds=1.0)
+    np.testing.assert_allclose(loop[:12], np.mod(np.arange(12) / 10, 1.0))
+    lapse = scene_times("timelapse", 5, fps, (2.0, 4.0))
+    np.testing.assert_allclose(lapse, [2.0, 2.5, 3.0, 3.5, 4.0])
+    np.testing.assert_allclose(scene_times("hold", 3, fps, (0.0, 1.0), hold=0.25), 0.25)
+    path = sample_path()
+    n = path_frame_count(path, fps)
+    assert n == 41
+    along = scene_times("path", n, fps, (0.0, 1.0), path=path)
+    assert along[0] == 0.0 and along[15] == pytest.approx(0.5) and along[-1] == pytest.approx(1.0)
+    with pytest.raises(CameraError, match="unknown time mode"):
+        scene_times("bounce", 3, fps, (0.0, 1.0))

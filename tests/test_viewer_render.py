@@ -1,0 +1,172 @@
+"""Headless rendering: ``splat4d render`` to mp4 / EXR / PNG, compositing and alpha, render modes, errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from splat4d.cameras import orbit
+from splat4d.checkpoint import save_checkpoint
+from splat4d.cli import main
+from splat4d.viewer.renderer import RENDER_MODES, RenderSettings, SplatRenderer, headless_context, render_image
+from splat4d.viewer.synthetic import synthetic_model
+
+
+@pytest.fixture(scope="module")
+def model():
+    return synthetic_model(4000, seed=1, sh_degree=1, sh_degree_t=1, radius=0.4, scale=0.02)
+
+
+@pytest.fixture(scope="module")
+def ckpt(model, tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("ckpt") / "model.safetensors"
+    save_checkpoint(path, model, background=(1.0, 1.0, 1.0))
+    return path
+
+
+def test_mp4_decodes_with_expected_frames_size_and_fps(ckpt, tmp_path, capsys):
+    out = tmp_path / "orbit.mp4"
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "96x64", "--fps", "12", "--frames", "7",
+                 "--trajectory", "spiral", "--quiet"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    with av.open(str(out)) as container:
+        stream = container.streams.video[0]
+        assert stream.codec_context.name == "h264"
+        assert (stream.width, stream.height) == (96, 64)
+        assert stream.average_rate == 12
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(stream)]
+    assert len(frames) == 7
+    assert all(f.shape == (64, 96, 3) for f in frames)
+    # white background from the checkpoint, the object in the middle, and the camera moves
+    assert frames[0][0, 0].min() > 240 and frames[0][32, 48].max() < 235
+    assert np.abs(frames[0].astype(int) - frames[3].astype(int)).mean() > 1.0
+
+
+def test_exr_keeps_alpha(ckpt, tmp_path):
+    out = tmp_path / "still.exr"
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--frames", "1",
+                 "--background", "transparent", "--time", "0.5", "--quiet"]) == 0
+    img = oiio.ImageInput.open(str(out))
+    spec = img.spec()
+    data = img.read_image("float")
+    img.close()
+    assert spec.nchannels == 4 and list(spec.channelnames) == ["R", "G", "B", "A"]
+    alpha = data[..., 3]
+    assert alpha[0, 0] == 0.0 and alpha.max() > 0.9  # transparent corners, opaque object
+    assert 0.05 < (alpha > 0.5).mean() < 0.9
+    # premultiplied: no colour where there is no coverage
+    assert np.abs(data[..., :3][alpha == 0]).max() == 0.0
+
+
+def test_png_sequence_with_alpha_and_no_overwrite(ckpt, tmp_path, capsys):
+    out = tmp_path / "frames"
+    args = ["render", str(ckpt), "--out", str(out), "--size", "40x30", "--frames", "3", "--background",
+            "transparent", "--time-mode", "timelapse", "--quiet"]
+    assert main(args) == 0
+    files = sorted(out.iterdir())
+    assert [f.name for f in files] == ["frame_00000.png", "frame_00001.png", "frame_00002.png"]
+    png = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
+    assert png.shape == (30, 40, 4) and png[..., 3].min() == 0 and png[..., 3].max() > 200
+    assert main(args) == 1
+    assert "already exists" in capsys.readouterr().err
+    assert main(args + ["--force"]) == 0
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--size", "63x48", "--out", "odd.mp4"], "even width and height"),
+    (["--background", "transparent", "--out", "a.mp4"], "no alpha channel"),
+    (["--mode", "sparkle", "--out", "a.png"], "unknown render mode"),
+    (["--out", "a.gif"], "unknown output format"),
+    (["--path", "missing.json", "--out", "a.mp4"], "no such camera path"),
+    (["--background", "purple", "--out", "a.png"], "background must be"),
+])
+def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", str(ckpt), "--frames", "1", "--quiet", *extra]) == 1
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err
+
+
+def test_missing_and_corrupt_checkpoints(tmp_path, capsys):
+    assert main(["render", str(tmp_path / "nope.safetensors"), "--out", str(tmp_path / "a.png")]) == 1
+    assert "no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{garbage")
+    assert main(["render", str(bad), "--out", str(tmp_path / "a.png")]) == 1
+    assert "error" in capsys.readouterr().err
+    assert not (tmp_path / "a.png").exists()
+
+
+def test_background_compositing_and_modes(model):
+    cam = orbit(20, 30, 1.6, fov_deg=45, width=64, height=64)
+    r = SplatRenderer(headless_context(), model)
+    try:
+        r.render(cam, 0.5, RenderSettings(transparent=True))
+        clear = r.read_display()
+        bg = np.array([0.2, 0.6, 0.9])
+        r.render(cam, 0.5, RenderSettings(background=tuple(bg)))
+        over = r.read_display()
+        np.testing.assert_allclose(over[..., :3], clear[..., :3] + (1 - clear[..., 3:]) * bg, atol=1e-5)
+        assert np.all(over[..., 3] == 1.0)
+        images = {}
+        for mode in RENDER_MODES:
+            r.render(cam, 0.5, RenderSettings(mode=mode))
+            images[mode] = r.read_display()
+        alpha = images["alpha"]
+        np.testing.assert_allclose(alpha[..., 0], clear[..., 3], atol=1e-6)
+        depth = images["depth"][..., :3]
+        covered = clear[..., 3] > 0.99
+        assert depth[covered].std() > 0.05 and depth[~(clear[..., 3] > 0)].max() == 0.0
+        for mode in ("outlines", "centers"):
+            assert (images[mode][..., :3].max(-1) > 0.02).mean() > 0.01, mode
+            assert np.abs(images[mode] - images["color"]).mean() > 0.01, mode
+        # splat scale shrinks the coverage, the SH degree changes colours only
+        r.render(cam, 0.5, RenderSettings(transparent=True, splat_scale=0.3))
+        assert (r.read_display()[..., 3] > 0.5).mean() < (clear[..., 3] > 0.5).mean()
+        r.render(cam, 0.5, RenderSettings(transparent=True, sh_degree=0))
+        dc = r.read_display()
+        np.testing.assert_allclose(dc[..., 3], clear[..., 3], atol=1e-6)
+        assert np.abs(dc[..., :3] - clear[..., :3]).max() > 1e-3
+    finally:
+        r.release()
+
+
+def test_skipping_hidden_gaussians_keeps_the_image():
+    """Front to back, Gaussians behind saturated tiles are skipped: fewer are drawn, the image does not change."""
+    dense = synthetic_model(40000, seed=2, sh_degree=0, radius=0.3, scale=0.02, speed=0.1)
+    cam = orbit(10, 20, 1.2, fov_deg=40, width=96, height=96)
+    r = SplatRenderer(headless_context(), dense)
+    try:
+        ftb = r.render(cam, 0.5, RenderSettings(transparent=True))
+        front = r.read_display()
+        btf = r.render(cam, 0.5, RenderSettings(transparent=True, composite="back-to-front"))
+        back = r.read_display()
+    finally:
+        r.release()
+    assert btf.drawn == btf.visible and ftb.drawn < 0.8 * ftb.visible
+    np.testing.assert_allclose(front, back, atol=2e-4)
+
+
+def test_renderer_leaves_another_current_gl_context_alone(model):
+    """Code that keeps its own standalone context current (and never re-enters it) still works around ours."""
+    import moderngl
+
+    other = moderngl.create_standalone_context(backend="egl")
+    fbo = other.simple_framebuffer((4, 4))
+    fbo.use()
+    cam = orbit(20, 30, 1.6, fov_deg=45, width=32, height=32)
+    first = None
+    for color in ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)):
+        img = render_image(model, cam, 0.5)  # the first call also creates the viewer's own context
+        first = img if first is None else first
+        fbo.use()
+        fbo.clear(*color, 1.0)
+        px = np.frombuffer(fbo.read(components=3), np.uint8)[:3]
+        assert px.tolist() == [int(255 * c) for c in color]
+    np.testing.assert_array_equal(img, first)
+    other.release()

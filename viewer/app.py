@@ -1,0 +1,493 @@
+"""The desktop viewer: a glfw window with a Dear ImGui panel (imgui-bundle's native glfw/OpenGL3 backends) over
+the moderngl `SplatRenderer`.
+
+Controls: left drag orbits (looks around in fly mode), right or middle drag pans, the wheel zooms, W/A/S/D and
+Q/E fly, Space plays/pauses, R resets the view, F toggles fly mode, P takes a screenshot, Esc quits. Drop a model
+file on the window (or type its path in the panel) to open it.
+
+Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the newest finished back-to-front order
+and a new sort is requested whenever the camera, the time or the splat scale changed, so the UI never waits for a
+sort. Screenshots are the exception: they wait for the order of their exact view.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import re
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from splat4d.errors import GLError, Splat4DError
+from splat4d.fileio import atomic_path
+
+from .camera_path import CameraKey, CameraPath, dataset_views
+from .controls import CameraController, Playback
+from .output import write_png
+from .renderer import COMPOSITE_ORDERS, RENDER_MODES, FrameStats, RenderSettings, SplatRenderer
+from .sorting import AsyncSorter, SortKey, SortResult
+from .trajectory import frame_model
+
+
+@dataclass
+class AppOptions:
+    """Start-up settings of the desktop app (the ``splat4d view`` options)."""
+
+    size: tuple[int, int] = (1280, 720)
+    up: str = "z"
+    fov: float = 40.0
+    #: render mode, splat scale, SH degree, blending and background at start-up ...
+    settings: RenderSettings = field(default_factory=RenderSettings)
+    #: ... except that the background is the checkpoint's unless this is False
+    checkpoint_background: bool = True
+    play: bool = True
+    time: float | None = None
+    loop_seconds: float = 2.0
+    cameras: str | None = None
+    split: str | None = "train"
+    camera_path: str | None = None
+    screenshot_dir: str = "."
+    vsync: bool = True
+    #: automation (tests, scripted captures): stop after this many frames ...
+    exit_after: int | None = None
+    #: ... and save a screenshot of the last frame here, and a JSON report here
+    screenshot: str | None = None
+    report: str | None = None
+    force: bool = False
+
+
+@dataclass
+class _Stats:
+    """The live numbers of the panel: the last frame's `FrameStats`, its wall time, the last sort, sort count."""
+
+    frame: FrameStats = field(default_factory=FrameStats)
+    frame_ms: float = 0.0
+    sort_ms: float = 0.0
+    sorts: int = 0
+
+
+@dataclass
+class _PathEditor:
+    path: CameraPath | None = None
+    file: str = "camera_path.json"
+    key_interval: float = 1.0
+    playing: bool = False
+    time: float = 0.0
+    overwrite: bool = False
+
+
+def camera_to_json(camera) -> dict:
+    """A camera as plain JSON (c2w rows, intrinsics, size)."""
+    return {"c2w": np.asarray(camera.c2w).tolist(), "fx": camera.fx, "fy": camera.fy, "cx": camera.cx,
+            "cy": camera.cy, "width": camera.width, "height": camera.height}
+
+
+class ViewerApp:
+    """Interactive viewer of one model at a time (see module doc). ``run()`` blocks until the window closes."""
+
+    def __init__(self, source, options: AppOptions | None = None) -> None:
+        """`source`: a model file path, or a `Checkpoint`."""
+        self.options = options or AppOptions()
+        self.status = ""
+        self.report: dict = {"frames": 0}
+        self._source = source
+        self._window = None
+        self._pending_open: str | None = None
+        self._screenshot_request: str | None = None
+        self._fly = False
+        self._stats = _Stats()
+        self._path = _PathEditor()
+        self._views = []
+        self._view_index = 0
+        self._generation = 0
+        self._order: SortResult | None = None
+        self._requested: tuple | None = None
+
+    # --- set-up -------------------------------------------------------------------------------------------------
+    def _init_window(self) -> None:
+        from imgui_bundle import imgui  # sets PYGLFW_LIBRARY so that glfw shares imgui's libglfw
+
+        import glfw
+        import moderngl
+
+        glfw.ERROR_REPORTING = "exception"  # set-up failures become one-line errors, not warnings
+        try:
+            if not glfw.init():
+                raise GLError("could not initialise glfw")
+            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+            glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+            glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+            w, h = self.options.size
+            window = glfw.create_window(w, h, "splat4d", None, None)
+            if not window:
+                raise GLError("could not open an OpenGL 3.3 core window")
+        except glfw.GLFWError as exc:
+            glfw.terminate()
+            msg = re.sub(r"^\(\d+\)\s*", "", str(exc).replace("b'", "").rstrip("'")).strip()
+            raise GLError(f"cannot open a window: {msg} (run under a desktop or Xvfb, or use `splat4d render`)") \
+                from None
+        glfw.ERROR_REPORTING = "warn"
+        self._window = window
+        glfw.make_context_current(window)
+        glfw.swap_interval(1 if self.options.vsync else 0)
+        glfw.set_drop_callback(window, self._on_drop)
+        self.ctx = moderngl.create_context(require=330)
+        imgui.create_context()
+        io = imgui.get_io()
+        io.set_ini_filename(None)  # no imgui.ini in the user's folder
+        addr = ctypes.cast(window, ctypes.c_void_p).value
+        if not (imgui.backends.glfw_init_for_opengl(addr, True) and imgui.backends.opengl3_init("#version 330")):
+            raise GLError("could not initialise the Dear ImGui glfw/OpenGL3 backends")
+        self.renderer = SplatRenderer(self.ctx)
+        self.sorter = AsyncSorter()
+
+    def _on_drop(self, _window, paths) -> None:
+        if paths:
+            self._pending_open = str(paths[0])
+
+    def load(self, source) -> None:
+        """Show a model file (or `Checkpoint`); on failure keep the current model and report the error."""
+        from splat4d.formats import load_model
+
+        ckpt = load_model(source) if isinstance(source, (str, os.PathLike)) else source
+        model = ckpt.model
+        first_load = self.renderer.model is None
+        t0, t1 = model.time_range
+        start = self.options.time if (first_load and self.options.time is not None) else 0.5 * (t0 + t1)
+        self.renderer.set_model(model, start)
+        self._generation += 1
+        self._order, self._requested = None, None
+        self.model, self.checkpoint = model, ckpt
+        self.source_name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
+        self.framing = frame_model(model)
+        if first_load:
+            o = self.options
+            self.settings = replace(o.settings, background=ckpt.background) if o.checkpoint_background \
+                else replace(o.settings)
+            self.playback = Playback(time_range=(t0, t1), time=start, playing=o.play, loop_seconds=o.loop_seconds)
+            self.controller = CameraController(fov=o.fov, up=o.up)
+        else:
+            self.playback.set_range((t0, t1))
+            self.playback.time = start
+        self.controller.reset(self.framing)
+        self.status = f"opened {self.source_name}: {len(model):,} Gaussians"
+        if not self.options.cameras:
+            self._views = self._training_views(ckpt)
+
+    @staticmethod
+    def _training_views(ckpt) -> list:
+        """The cameras of the dataset a checkpoint was trained on, when that folder is still readable."""
+        root = (getattr(ckpt, "training", None) or {}).get("dataset")
+        if not root or not Path(root).is_dir():
+            return []
+        try:
+            return dataset_views(root, "train")
+        except Splat4DError:
+            return []
+
+    # --- main loop ----------------------------------------------------------------------------------------------
+    def run(self) -> dict:
+        """Open the window and loop until it is closed (or `exit_after` frames); returns the report dict."""
+        import glfw
+        from imgui_bundle import imgui
+
+        self._init_window()
+        try:
+            self.load(self._source)
+            if self.options.cameras:
+                self._views = dataset_views(self.options.cameras, self.options.split)
+            if self.options.camera_path:
+                self._path.path = CameraPath.load(self.options.camera_path)
+                self._path.file = self.options.camera_path
+            self.report.update(time_start=self.playback.time, started=time.time())
+            last = time.perf_counter()
+            frames = 0
+            while not glfw.window_should_close(self._window):
+                glfw.poll_events()
+                now = time.perf_counter()
+                dt, last = now - last, now
+                imgui.backends.opengl3_new_frame()
+                imgui.backends.glfw_new_frame()
+                imgui.new_frame()
+                if self._pending_open:
+                    path, self._pending_open = self._pending_open, None
+                    self._open(path)
+                final = self.options.exit_after is not None and frames + 1 >= self.options.exit_after
+                if final and self.options.screenshot:
+                    self._screenshot_request = self.options.screenshot
+                self._handle_input(dt)
+                self._draw_frame(dt)
+                self._draw_ui()
+                imgui.render()
+                imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+                glfw.swap_buffers(self._window)
+                frames += 1
+                if final:
+                    break
+            self.report.update(frames=frames, time_end=self.playback.time, sorts=self._stats.sorts,
+                               seconds=time.time() - self.report["started"])
+        finally:
+            self._shutdown()
+        if self.options.report:
+            with atomic_path(self.options.report, force=True) as tmp:
+                tmp.write_text(json.dumps(self.report, indent=2))
+        return self.report
+
+    def _shutdown(self) -> None:
+        import glfw
+        from imgui_bundle import imgui
+
+        if getattr(self, "sorter", None) is not None:
+            self.sorter.close()
+        if self._window is not None:
+            if getattr(self, "renderer", None) is not None:
+                self.renderer.release()
+            imgui.backends.opengl3_shutdown()
+            imgui.backends.glfw_shutdown()
+            imgui.destroy_context()
+            glfw.destroy_window(self._window)
+            self._window = None
+        glfw.terminate()
+
+    def _open(self, path: str) -> None:
+        self._attempt(lambda: self.load(path))
+
+    def _attempt(self, action, done: str | None = None) -> bool:
+        """Run a user action; its one-line error (or `done`) goes to the panel's status line. True on success."""
+        try:
+            action()
+        except Splat4DError as exc:
+            self.status = f"error: {exc}"
+            return False
+        if done:
+            self.status = done
+        return True
+
+    # --- per frame ----------------------------------------------------------------------------------------------
+    def _current_view(self, width: int, height: int):
+        """(camera, model time) of this frame: the camera path while it plays, else the interactive rig."""
+        t = self.playback.time
+        pe = self._path
+        if pe.playing and pe.path is not None:
+            cam = pe.path.camera(pe.time, width, height)
+            st = pe.path.scene_time(pe.time)
+            if st is not None:
+                t = self.playback.time = st
+            return cam, t
+        return self.controller.camera(width, height), t
+
+    def _draw_frame(self, dt: float) -> None:
+        import glfw
+
+        t_frame = time.perf_counter()
+        dt = min(dt, 0.1)  # a stall (file load, first frame) must not make time jump
+        self.playback.advance(dt)
+        pe = self._path
+        if pe.playing and pe.path is not None:
+            pe.time += dt
+            if pe.time > pe.path.start + pe.path.duration and not pe.path.loop:
+                pe.time, pe.playing = pe.path.start + pe.path.duration, False
+        width, height = glfw.get_framebuffer_size(self._window)
+        if width <= 0 or height <= 0:  # minimised
+            return
+        camera, t = self._current_view(width, height)
+        s = self.settings
+        splats = self.renderer.splats_at(t)
+        key = SortKey.of(camera, t, s.splat_scale)
+        if self._requested != (self._generation, key):
+            self.sorter.request(splats, camera, t, s.splat_scale, tag=self._generation)
+            self._requested = (self._generation, key)
+        self._take_sort_result(self.sorter.poll())
+        screenshot = self._screenshot_request
+        if self._order is None or screenshot:  # first frame of a model, or a screenshot: wait for this view
+            self._take_sort_result(self.sorter.wait())
+        if self._order is None:
+            return
+        stats = self.renderer.render(camera, t, s, order=self._order, target=self.ctx.screen,
+                                     viewport=(0, 0, width, height), sync=True)
+        glfw.make_context_current(self._window)  # the panel draws next, with the window's context
+        st = self._stats
+        st.frame = stats
+        if screenshot:
+            self._screenshot_request = None
+            self._save_screenshot(screenshot, camera, t, width, height)
+        st.frame_ms = (time.perf_counter() - t_frame) * 1e3
+
+    def _take_sort_result(self, res: SortResult | None) -> None:
+        if res is not None and res.tag == self._generation:
+            self._order = res
+            self._stats.sort_ms = res.ms
+            self._stats.sorts += 1
+
+    def _save_screenshot(self, path: str, camera, t: float, width: int, height: int) -> None:
+        """Save what the window shows (without the panel) as a PNG."""
+        data = self.ctx.screen.read(viewport=(0, 0, width, height), components=3)
+        rgb = np.frombuffer(data, np.uint8).reshape(height, width, 3)[::-1].astype(np.float32) / 255.0
+        rgba = np.concatenate([rgb, np.ones_like(rgb[..., :1])], -1)
+        explicit = path is self.options.screenshot
+        target = Path(path)
+
+        def save() -> None:
+            with atomic_path(target, force=self.options.force if explicit else False) as tmp:
+                write_png(tmp, rgba, alpha=False)
+
+        if not self._attempt(save, f"saved {target}"):
+            return
+        self.report["screenshot"] = {"path": str(target), "camera": camera_to_json(camera), "time": t,
+                                     "background": list(self.settings.background), "mode": self.settings.mode,
+                                     "splat_scale": self.settings.splat_scale, "sh_degree": self.settings.sh_degree}
+
+    def _next_screenshot_name(self) -> str:
+        folder = Path(self.options.screenshot_dir)
+        for i in range(1, 100000):
+            p = folder / f"splat4d_{i:04d}.png"
+            if not p.exists():
+                return str(p)
+        raise GLError(f"{folder}: too many screenshots")
+
+    # --- input --------------------------------------------------------------------------------------------------
+    def _handle_input(self, dt: float) -> None:
+        import glfw
+        from imgui_bundle import imgui
+
+        io = imgui.get_io()
+        c = self.controller
+        _, height = glfw.get_framebuffer_size(self._window)
+        if not io.want_capture_mouse:
+            d = io.mouse_delta
+            if imgui.is_mouse_down(imgui.MouseButton_.left) and (d.x or d.y):
+                c.look(d.x, d.y) if self._fly else c.orbit(d.x, d.y)
+                self._path.playing = False
+            if (imgui.is_mouse_down(imgui.MouseButton_.right) or imgui.is_mouse_down(imgui.MouseButton_.middle)) \
+                    and (d.x or d.y):
+                c.pan(d.x, d.y, height)
+                self._path.playing = False
+            if io.mouse_wheel:
+                c.zoom(io.mouse_wheel)
+        if io.want_capture_keyboard:
+            return
+        key = imgui.Key
+        down = imgui.is_key_down
+        fwd = float(down(key.w)) - float(down(key.s))
+        right = float(down(key.d)) - float(down(key.a))
+        upward = float(down(key.e)) - float(down(key.q))
+        if fwd or right or upward:
+            speed = self.framing.radius * (4.0 if down(key.left_shift) else 1.0)
+            c.fly(fwd, right, upward, dt, speed)
+            self._path.playing = False
+        if imgui.is_key_pressed(key.space, False):
+            self.playback.playing = not self.playback.playing
+        if imgui.is_key_pressed(key.r, False):
+            c.reset(self.framing)
+        if imgui.is_key_pressed(key.f, False):
+            self._fly = not self._fly
+        if imgui.is_key_pressed(key.p, False):
+            self._screenshot_request = self._next_screenshot_name()
+        if imgui.is_key_pressed(key.escape, False):
+            glfw.set_window_should_close(self._window, True)
+
+    # --- panel --------------------------------------------------------------------------------------------------
+    def _draw_ui(self) -> None:
+        from imgui_bundle import imgui
+
+        imgui.set_next_window_pos((10, 10), imgui.Cond_.first_use_ever)
+        imgui.set_next_window_size((330, 0), imgui.Cond_.first_use_ever)
+        imgui.begin("splat4d")
+        st, pb, s, c = self._stats, self.playback, self.settings, self.controller
+        imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
+        imgui.text(f"sort {st.sort_ms:5.1f} ms  draw {st.frame.draw_ms + st.frame.upload_ms:5.1f} ms")
+        imgui.text(f"visible {st.frame.visible:,} / {st.frame.total:,} Gaussians")
+
+        imgui.separator_text("Time")
+        t0, t1 = pb.time_range
+        if imgui.button("Pause" if pb.playing else "Play"):
+            pb.playing = not pb.playing
+        imgui.same_line()
+        _, pb.loop = imgui.checkbox("loop", pb.loop)
+        changed, value = imgui.slider_float("time", pb.time, t0, t1, "%.3f")
+        if changed:
+            pb.time, pb.playing = value, False
+        _, pb.speed = imgui.slider_float("speed", pb.speed, 0.0, 4.0, "%.2fx")
+
+        imgui.separator_text("Camera")
+        if imgui.button("Reset (R)"):
+            c.reset(self.framing)
+        imgui.same_line()
+        _, self._fly = imgui.checkbox("fly mode (F)", self._fly)
+        _, c.fov = imgui.slider_float("fov", c.fov, 10.0, 120.0, "%.0f deg")
+        if self._views:
+            _, self._view_index = imgui.slider_int("dataset view", self._view_index, 0, len(self._views) - 1)
+            if imgui.button("Snap to dataset camera"):
+                v = self._views[self._view_index]
+                c.snap(v.camera)
+                pb.time, pb.playing = v.time, False
+                self._path.playing = False
+            imgui.same_line()
+            imgui.text(Path(self._views[self._view_index].name).name)
+
+        imgui.separator_text("Look")
+        _, mode = imgui.combo("mode", RENDER_MODES.index(s.mode), list(RENDER_MODES))
+        s.mode = RENDER_MODES[mode]
+        _, s.splat_scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f")
+        max_deg = self.renderer.splats.sh_degree if self.renderer.splats is not None else 0
+        deg = max_deg if s.sh_degree is None else min(s.sh_degree, max_deg)
+        changed, deg = imgui.slider_int("SH degree", deg, 0, max_deg)
+        if changed:
+            s.sh_degree = deg
+        _, bg = imgui.color_edit3("background", list(s.background))
+        s.background = tuple(float(x) for x in bg)
+        _, comp = imgui.combo("blending", COMPOSITE_ORDERS.index(s.composite), list(COMPOSITE_ORDERS))
+        s.composite = COMPOSITE_ORDERS[comp]
+        if imgui.button("Screenshot (P)"):
+            self._screenshot_request = self._next_screenshot_name()
+
+        self._draw_path_ui()
+
+        imgui.separator_text("File")
+        changed, self._open_text = imgui.input_text("##open", getattr(self, "_open_text", ""))
+        imgui.same_line()
+        if imgui.button("Open"):
+            self._pending_open = self._open_text
+        imgui.text_wrapped(self.status or "drop a model file on the window to open it")
+        imgui.end()
+
+    def _draw_path_ui(self) -> None:
+        from imgui_bundle import imgui
+
+        pe = self._path
+        imgui.separator_text("Camera path")
+        n = len(pe.path.keys) if pe.path else 0
+        imgui.text(f"{n} keyframe(s)" + (f", {pe.path.duration:.1f} s" if n else ""))
+        _, pe.key_interval = imgui.slider_float("key spacing", pe.key_interval, 0.1, 5.0, "%.1f s")
+        if imgui.button("Add key"):
+            width, height = self.options.size
+            cam = self.controller.camera(width, height)
+            time_at = pe.path.keys[-1].time + pe.key_interval if pe.path else 0.0
+            key = CameraKey.from_camera(time_at, cam, self.playback.time)
+            pe.path = pe.path.with_key(key) if pe.path else CameraPath([key], self.controller.up)
+        imgui.same_line()
+        if imgui.button("Clear"):
+            pe.path, pe.playing = None, False
+        imgui.same_line()
+        if imgui.button("Stop" if pe.playing else "Play path") and pe.path is not None:
+            pe.playing = not pe.playing
+            if pe.playing:
+                pe.time = pe.path.start
+        _, pe.file = imgui.input_text("path file", pe.file)
+        if imgui.button("Save") and pe.path is not None:
+            self._attempt(lambda: pe.path.save(pe.file, force=pe.overwrite), f"saved camera path {pe.file}")
+        imgui.same_line()
+        if imgui.button("Load"):
+            self._attempt(lambda: setattr(pe, "path", CameraPath.load(pe.file)), f"loaded camera path {pe.file}")
+        imgui.same_line()
+        _, pe.overwrite = imgui.checkbox("overwrite", pe.overwrite)
+
+
+def run_app(source, options: AppOptions | None = None) -> dict:
+    """Open the viewer on `source` (a model path or `Checkpoint`) and block until it closes."""
+    return ViewerApp(source, options).run()

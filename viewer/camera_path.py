@@ -1,0 +1,399 @@
+"""Keyframed camera paths: the JSON file shared by the desktop app (record / save / load) and `splat4d render`.
+
+File format (``.json``; see docs/viewer.md)::
+
+    {
+      "format": "splat4d-camera-path", "version": 1,
+      "up": "z",                       # world up for look-at keys: "x", "y", "z", "-x", "-y", "-z" or [x, y, z]
+      "loop": false,                   # true: the path closes back to its first key (periodic)
+      "keyframes": [
+        {"time": 0.0, "position": [3, 0, 1], "look_at": [0, 0, 0], "fov": 40.0, "scene_time": 0.0},
+        {"time": 2.5, "position": [0, 3, 1], "quaternion": [w, x, y, z], "fov": 35.0}
+      ]
+    }
+
+* ``time``: seconds along the path (strictly increasing).
+* ``position``: camera centre in world units.
+* orientation: either ``look_at`` (a world point; the camera's up is the path's ``up``) or ``quaternion``, the
+  camera-to-world rotation in **OpenCV camera axes** (x right, y down, z forward), w first (as `splat4d.cameras`).
+* ``fov``: vertical field of view in degrees (optional, default 40).
+* ``scene_time``: optional model time shown at this key (used when rendering with ``--time-mode path``); it is
+  interpolated linearly and only used when every key has one.
+
+Interpolation: position by a cubic Hermite spline with Catmull-Rom tangents scaled for the key spacing (it passes
+through every key), orientation by slerp (`splat4d.quaternion.slerp`) between consecutive keys, fov and scene time
+linearly. A looping path adds a closing segment from the last key back to the first, lasting the mean key spacing.
+
+`path_from_dataset` turns the cameras of a training dataset (D-NeRF / Blender ``transforms_*.json``) into a path.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from splat4d import quaternion
+from splat4d.cameras import Camera, _as_up, focal_from_fov, look_at_c2w, opengl_to_opencv
+from splat4d.errors import CameraError
+from splat4d.fileio import atomic_write_bytes
+
+FORMAT_NAME = "splat4d-camera-path"
+FORMAT_VERSION = 1
+DEFAULT_FOV = 40.0
+
+
+def rotation_to_quaternion(rot: np.ndarray) -> np.ndarray:
+    """``[3, 3]`` rotation -> ``[4]`` unit quaternion (w first, w >= 0)."""
+    return quaternion.from_rotmat(torch.tensor(np.asarray(rot, np.float64))).numpy()
+
+
+def quaternion_to_rotation(q: Sequence[float]) -> np.ndarray:
+    """``[4]`` quaternion (w first, normalised here) -> ``[3, 3]`` rotation."""
+    return quaternion.to_rotmat(torch.tensor(np.asarray(q, np.float64))).numpy()
+
+
+@dataclass(frozen=True)
+class CameraKey:
+    """One keyframe of a `CameraPath`.
+
+    Attributes:
+        time: seconds along the path.
+        position: ``[3]`` camera centre.
+        quaternion: ``[4]`` camera-to-world rotation (OpenCV axes), w first, unit.
+        fov: vertical field of view in degrees.
+        scene_time: model time at this key, or None.
+        look_at: ``[3]`` the point the key was defined to look at (kept for saving), or None.
+    """
+
+    time: float
+    position: np.ndarray
+    quaternion: np.ndarray
+    fov: float = DEFAULT_FOV
+    scene_time: float | None = None
+    look_at: np.ndarray | None = None
+
+    @classmethod
+    def from_camera(cls, time: float, camera: Camera, scene_time: float | None = None) -> "CameraKey":
+        """A key reproducing `camera`'s pose and vertical field of view."""
+        return cls(float(time), camera.position, rotation_to_quaternion(camera.c2w[:3, :3]),
+                   math.degrees(camera.fov_y), None if scene_time is None else float(scene_time))
+
+    def c2w(self) -> np.ndarray:
+        out = np.eye(4)
+        out[:3, :3] = quaternion_to_rotation(self.quaternion)
+        out[:3, 3] = self.position
+        return out
+
+    def to_json(self) -> dict:
+        d: dict = {"time": self.time, "position": [float(x) for x in self.position]}
+        if self.look_at is not None:
+            d["look_at"] = [float(x) for x in self.look_at]
+        else:
+            d["quaternion"] = [float(x) for x in self.quaternion]
+        d["fov"] = self.fov
+        if self.scene_time is not None:
+            d["scene_time"] = self.scene_time
+        return d
+
+
+def _vector(value, n: int, what: str) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraError(f"{what} must be {n} numbers, got {value!r}") from None
+    if v.shape != (n,) or not np.isfinite(v).all():
+        raise CameraError(f"{what} must be {n} finite numbers, got {value!r}")
+    return v
+
+
+def _number(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CameraError(f"{what} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _key_from_json(d, i: int, up) -> CameraKey:
+    where = f"keyframe {i}"
+    if not isinstance(d, dict):
+        raise CameraError(f"{where} must be an object, got {type(d).__name__}")
+    unknown = set(d) - {"time", "position", "look_at", "quaternion", "fov", "scene_time"}
+    if unknown:
+        raise CameraError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
+    for name in ("time", "position"):
+        if name not in d:
+            raise CameraError(f"{where}: missing '{name}'")
+    position = _vector(d["position"], 3, f"{where} position")
+    if ("look_at" in d) == ("quaternion" in d):
+        raise CameraError(f"{where}: give exactly one of 'look_at' and 'quaternion'")
+    look = None
+    if "look_at" in d:
+        look = _vector(d["look_at"], 3, f"{where} look_at")
+        q = rotation_to_quaternion(look_at_c2w(position, look, up)[:3, :3])
+    else:
+        q = _vector(d["quaternion"], 4, f"{where} quaternion")
+        if np.linalg.norm(q) < 1e-9:
+            raise CameraError(f"{where}: quaternion is zero")
+        q = q / np.linalg.norm(q)
+    fov = _number(d.get("fov", DEFAULT_FOV), f"{where} fov")
+    if not 0 < fov < 180:
+        raise CameraError(f"{where}: fov must be in (0, 180) degrees, got {fov}")
+    scene_time = None if d.get("scene_time") is None else _number(d["scene_time"], f"{where} scene_time")
+    return CameraKey(_number(d["time"], f"{where} time"), position, q, fov, scene_time, look)
+
+
+def _hermite(p0, p1, m0, m1, h: float, s: float):
+    """Cubic Hermite between p0 and p1 (tangents m0, m1 per unit time, segment length h) at s in [0, 1]."""
+    s2, s3 = s * s, s * s * s
+    return ((2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * m0 + (-2 * s3 + 3 * s2) * p1
+            + (s3 - s2) * h * m1)
+
+
+@dataclass
+class CameraPath:
+    """An interpolated sequence of `CameraKey` (see module doc for the file format and interpolation)."""
+
+    keys: list[CameraKey]
+    up: str | tuple[float, float, float] = "z"
+    loop: bool = False
+    _times: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.keys:
+            raise CameraError("a camera path needs at least one keyframe")
+        times = np.array([k.time for k in self.keys], np.float64)
+        if np.any(np.diff(times) <= 0):
+            raise CameraError("camera path keyframe times must be strictly increasing")
+        _as_up(self.up)
+        self._times = times
+
+    # --- timing ---------------------------------------------------------------------------------------------
+    @property
+    def start(self) -> float:
+        return float(self._times[0])
+
+    @property
+    def closing_time(self) -> float:
+        """Duration of the closing segment of a looping path (the mean key spacing)."""
+        if len(self.keys) < 2:
+            return 1.0
+        return float(np.mean(np.diff(self._times)))
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first key to the last (to the first again when looping)."""
+        span = float(self._times[-1] - self._times[0])
+        return span + self.closing_time if self.loop and len(self.keys) > 1 else span
+
+    @property
+    def has_scene_time(self) -> bool:
+        return all(k.scene_time is not None for k in self.keys)
+
+    def _segment(self, time: float) -> tuple[int, int, float, float]:
+        """(key a, key b, local parameter s in [0, 1], segment length h) for path time `time`."""
+        n = len(self.keys)
+        times = self._times
+        if n == 1:
+            return 0, 0, 0.0, 1.0
+        if self.loop:
+            u = (time - times[0]) % self.duration + times[0]
+            if u >= times[-1]:
+                h = self.closing_time
+                return n - 1, 0, (u - times[-1]) / h, h
+            time = u
+        if time <= times[0]:
+            return 0, 1, 0.0, float(times[1] - times[0])
+        if time >= times[-1]:
+            return n - 2, n - 1, 1.0, float(times[-1] - times[-2])
+        i = int(np.searchsorted(times, time, side="right")) - 1
+        h = float(times[i + 1] - times[i])
+        return i, i + 1, (time - times[i]) / h, h
+
+    def _tangent(self, i: int) -> np.ndarray:
+        """Catmull-Rom tangent at key i (per unit time), one-sided at the ends of an open path."""
+        n, p, t = len(self.keys), [k.position for k in self.keys], self._times
+        if n == 1:
+            return np.zeros(3)
+        if self.loop:
+            period = self.duration
+            prev_t = t[i - 1] if i > 0 else t[-1] - period
+            next_t = t[i + 1] if i < n - 1 else t[0] + period
+            return (p[(i + 1) % n] - p[i - 1]) / (next_t - prev_t)
+        if i == 0:
+            return (p[1] - p[0]) / (t[1] - t[0])
+        if i == n - 1:
+            return (p[-1] - p[-2]) / (t[-1] - t[-2])
+        return (p[i + 1] - p[i - 1]) / (t[i + 1] - t[i - 1])
+
+    # --- evaluation -----------------------------------------------------------------------------------------
+    def pose(self, time: float) -> tuple[np.ndarray, float]:
+        """(camera-to-world ``[4, 4]`` (OpenCV axes), vertical fov in degrees) at path time `time`."""
+        a, b, s, h = self._segment(float(time))
+        ka, kb = self.keys[a], self.keys[b]
+        pos = _hermite(ka.position, kb.position, self._tangent(a), self._tangent(b), h, s)
+        q = quaternion.slerp(torch.as_tensor(ka.quaternion), torch.as_tensor(kb.quaternion), float(s)).numpy()
+        c2w = np.eye(4)
+        c2w[:3, :3] = quaternion_to_rotation(q)
+        c2w[:3, 3] = pos
+        return c2w, ka.fov + (kb.fov - ka.fov) * s
+
+    def camera(self, time: float, width: int, height: int) -> Camera:
+        """The camera at path time `time` rendering `width` x `height` pixels."""
+        c2w, fov = self.pose(time)
+        return Camera.from_fov(c2w, width, height, fov_y_deg=fov)
+
+    def scene_time(self, time: float) -> float | None:
+        """Model time at path time `time` (linear between keys), or None if some key has no scene time."""
+        if not self.has_scene_time:
+            return None
+        a, b, s, _ = self._segment(float(time))
+        ta, tb = self.keys[a].scene_time, self.keys[b].scene_time
+        return ta + (tb - ta) * s
+
+    # --- editing --------------------------------------------------------------------------------------------
+    def with_key(self, key: CameraKey) -> "CameraPath":
+        """A copy with `key` added (keys are kept sorted by time; a key at an existing time replaces it)."""
+        keys = [k for k in self.keys if k.time != key.time] + [key]
+        return CameraPath(sorted(keys, key=lambda k: k.time), self.up, self.loop)
+
+    # --- files ----------------------------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        up = self.up if isinstance(self.up, str) else [float(x) for x in self.up]
+        return {"format": FORMAT_NAME, "version": FORMAT_VERSION, "up": up, "loop": self.loop,
+                "keyframes": [k.to_json() for k in self.keys]}
+
+    @classmethod
+    def from_json(cls, data, source: str = "camera path") -> "CameraPath":
+        if not isinstance(data, dict):
+            raise CameraError(f"{source}: expected a JSON object")
+        if data.get("format", FORMAT_NAME) != FORMAT_NAME:
+            raise CameraError(f"{source}: not a splat4d camera path (format {data.get('format')!r})")
+        version = data.get("version", FORMAT_VERSION)
+        if not isinstance(version, int) or version > FORMAT_VERSION:
+            raise CameraError(f"{source}: camera path version {version!r} is newer than this splat4d reads")
+        keys = data.get("keyframes")
+        if not isinstance(keys, list) or not keys:
+            raise CameraError(f"{source}: 'keyframes' must be a non-empty list")
+        up = data.get("up", "z")
+        try:
+            _as_up(up)
+        except CameraError as exc:
+            raise CameraError(f"{source}: {exc}") from None
+        up = up if isinstance(up, str) else tuple(float(x) for x in up)
+        try:
+            parsed = [_key_from_json(k, i, up) for i, k in enumerate(keys)]
+            return cls(parsed, up, bool(data.get("loop", False)))
+        except CameraError as exc:
+            raise CameraError(f"{source}: {exc}") from None
+
+    def save(self, path: str | os.PathLike, force: bool = False) -> Path:
+        return atomic_write_bytes(path, (json.dumps(self.to_json(), indent=2) + "\n").encode(), force)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "CameraPath":
+        path = Path(path)
+        if not path.is_file():
+            raise CameraError(f"{path}: no such camera path file")
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise CameraError(f"{path}: not a readable JSON camera path ({exc})") from None
+        return cls.from_json(data, str(path))
+
+
+# --- training dataset cameras ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DatasetView:
+    """One camera of a training dataset: its name (image path), the camera and the frame's scene time."""
+
+    name: str
+    camera: Camera
+    time: float
+
+
+def _transforms_files(path: Path, split: str | None) -> list[Path]:
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise CameraError(f"{path}: no such dataset folder or transforms file")
+    splits = [split] if split else ["train", "val", "test"]
+    files = [path / f"transforms_{s}.json" for s in splits if (path / f"transforms_{s}.json").is_file()]
+    if not files and (path / "transforms.json").is_file():
+        files = [path / "transforms.json"]
+    if not files:
+        raise CameraError(f"{path}: no transforms_{split or 'train'}.json (D-NeRF / Blender dataset layout)")
+    return files
+
+
+def _image_size(root: Path, frame: dict, meta: dict) -> tuple[int, int] | None:
+    w = frame.get("w", meta.get("w"))
+    h = frame.get("h", meta.get("h"))
+    if w and h:
+        return int(w), int(h)
+    fp = frame.get("file_path")
+    if not fp:
+        return None
+    import cv2
+
+    for cand in (root / fp, root / f"{fp}.png", root / f"{fp}.jpg"):
+        if cand.is_file():
+            img = cv2.imread(str(cand), cv2.IMREAD_UNCHANGED)
+            if img is not None:
+                return img.shape[1], img.shape[0]
+    return None
+
+
+def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[DatasetView]:
+    """Cameras of a D-NeRF / Blender layout dataset (``transforms_<split>.json``; ``split=None``: all splits).
+
+    Poses are OpenGL camera-to-world ``transform_matrix``; intrinsics come from ``fl_x/fl_y/cx/cy`` or
+    ``camera_angle_x``; the image size from ``w/h`` or the first image (800x800 if neither is found).
+    """
+    views: list[DatasetView] = []
+    for f in _transforms_files(Path(path), split):
+        try:
+            meta = json.loads(f.read_text())
+            frames = meta["frames"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise CameraError(f"{f}: not a readable transforms file ({exc})") from None
+        size = None
+        for i, fr in enumerate(frames):
+            try:
+                if size is None or "w" in fr:
+                    size = _image_size(f.parent, fr, meta) or (800, 800)
+                w, h = size
+                c2w = np.asarray(fr["transform_matrix"], np.float64)[:4]
+                fx = fr.get("fl_x", meta.get("fl_x"))
+                if fx is None:
+                    fx = focal_from_fov(float(fr.get("camera_angle_x", meta["camera_angle_x"])), w)
+                fy = fr.get("fl_y", meta.get("fl_y", fx))
+                cx = fr.get("cx", meta.get("cx", w / 2.0))
+                cy = fr.get("cy", meta.get("cy", h / 2.0))
+                cam = Camera(opengl_to_opencv(c2w), fx, fy, cx, cy, w, h)
+            except (KeyError, TypeError, ValueError, CameraError) as exc:
+                raise CameraError(f"{f}: frame {i} has no usable camera ({exc})") from None
+            time = fr.get("time", i / max(len(frames) - 1, 1))
+            views.append(DatasetView(str(fr.get("file_path", f"{f.stem}/{i}")), cam, float(time)))
+    if not views:
+        raise CameraError(f"{path}: the dataset has no camera frames")
+    return views
+
+
+def path_from_dataset(path: str | os.PathLike, split: str | None = "train", seconds_per_key: float = 0.5,
+                      up: str | Sequence[float] = "z") -> CameraPath:
+    """A camera path through the cameras of a training dataset, ordered by frame time (then file order).
+
+    Each view becomes one key, `seconds_per_key` apart, carrying its frame time as ``scene_time``.
+    """
+    if not seconds_per_key > 0:
+        raise CameraError(f"seconds per key must be positive, got {seconds_per_key}")
+    views = sorted(enumerate(dataset_views(path, split)), key=lambda iv: (iv[1].time, iv[0]))
+    keys = [CameraKey.from_camera(i * seconds_per_key, v.camera, v.time) for i, (_, v) in enumerate(views)]
+    return CameraPath(keys, up if isinstance(up, str) else tuple(up))
+

@@ -1,0 +1,165 @@
+"""Interactive camera and playback state of the desktop app (pure math: no window, no GL).
+
+`CameraController` keeps a look-at rig: a target point, a distance, and the eye's azimuth/elevation around the
+target in the world-up frame of `splat4d.cameras.orbit_position`. Orbit rotates the eye around the target, pan
+slides both, zoom changes the distance, fly (WASD/QE) moves both along the view axes and mouse-look turns the view
+around the eye. Snapping to a dataset camera shows that exact pose (roll and intrinsics' FOV included) until the
+next interaction.
+
+`Playback` is the one timeline the app uses: play/pause, speed, loop or stop at the end of the time range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from splat4d.cameras import UP_AXES, Camera, look_at, orbit_position
+
+from .trajectory import Framing
+
+_MAX_ELEVATION = 89.0
+
+
+def _direction(elevation: float, azimuth: float, up: str) -> np.ndarray:
+    """Unit vector from the target to the eye (`orbit_position` at radius 1)."""
+    return orbit_position(elevation, azimuth, 1.0, up)
+
+
+@dataclass
+class CameraController:
+    """Orbit / pan / zoom / fly camera (angles in degrees, up axis 'y' or 'z')."""
+
+    target: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    distance: float = 3.0
+    azimuth: float = 45.0
+    elevation: float = 20.0
+    fov: float = 40.0
+    up: str = "z"
+    #: exact camera-to-world pose shown instead of the rig (after snapping to a dataset camera)
+    exact_c2w: np.ndarray | None = None
+    #: a snapped camera's own vertical fov (degrees) while `exact_c2w` is set
+    exact_fov: float | None = None
+
+    @property
+    def eye(self) -> np.ndarray:
+        if self.exact_c2w is not None:
+            return self.exact_c2w[:3, 3].copy()
+        return self.target + self.distance * _direction(self.elevation, self.azimuth, self.up)
+
+    def camera(self, width: int, height: int) -> Camera:
+        """The current view rendering `width` x `height` pixels."""
+        if self.exact_c2w is not None:
+            return Camera.from_fov(self.exact_c2w, width, height, fov_y_deg=self.exact_fov or self.fov)
+        return look_at(self.eye, self.target, self.up, self.fov, width, height)
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World (right, down, forward) axes of the current view."""
+        c2w = self.camera(2, 2).c2w
+        return c2w[:3, 0].copy(), c2w[:3, 1].copy(), c2w[:3, 2].copy()
+
+    def _release_exact(self) -> None:
+        """Leave a snapped pose: continue from its position and viewing direction with the rig."""
+        if self.exact_c2w is None:
+            return
+        eye, forward = self.exact_c2w[:3, 3].copy(), self.exact_c2w[:3, 2].copy()
+        self.exact_c2w, self.exact_fov = None, None
+        self.look_from(eye, forward)
+
+    def look_from(self, eye: np.ndarray, forward: np.ndarray) -> None:
+        """Place the rig at `eye` looking along `forward`, keeping the current distance to the target."""
+        up = np.array(UP_AXES[self.up])
+        back = -np.asarray(forward, np.float64) / max(np.linalg.norm(forward), 1e-12)
+        self.elevation = float(np.clip(math.degrees(math.asin(np.clip(back @ up, -1, 1))), -_MAX_ELEVATION,
+                                       _MAX_ELEVATION))
+        # azimuth from the components along the two horizontal axes of orbit_position
+        x_axis = _direction(0.0, 0.0, self.up)
+        y_axis = _direction(0.0, 90.0, self.up)
+        self.azimuth = math.degrees(math.atan2(back @ y_axis, back @ x_axis))
+        self.target = np.asarray(eye, np.float64) - self.distance * _direction(self.elevation, self.azimuth, self.up)
+
+    # --- interaction ----------------------------------------------------------------------------------------
+    def orbit(self, dx: float, dy: float, degrees_per_pixel: float = 0.3) -> None:
+        """Rotate the eye around the target by a mouse drag of (dx, dy) pixels."""
+        self._release_exact()
+        self.azimuth -= dx * degrees_per_pixel
+        self.elevation = float(np.clip(self.elevation + dy * degrees_per_pixel, -_MAX_ELEVATION, _MAX_ELEVATION))
+
+    def look(self, dx: float, dy: float, degrees_per_pixel: float = 0.2) -> None:
+        """Turn the view around the eye (fly mode mouse-look)."""
+        self._release_exact()
+        eye = self.eye
+        self.azimuth -= dx * degrees_per_pixel
+        self.elevation = float(np.clip(self.elevation + dy * degrees_per_pixel, -_MAX_ELEVATION, _MAX_ELEVATION))
+        self.target = eye - self.distance * _direction(self.elevation, self.azimuth, self.up)
+
+    def pan(self, dx: float, dy: float, viewport_height: int) -> None:
+        """Slide target and eye so that the scene follows a drag of (dx, dy) pixels."""
+        self._release_exact()
+        right, down, _ = self.basis()
+        scale = 2.0 * self.distance * math.tan(math.radians(0.5 * self.fov)) / max(viewport_height, 1)
+        self.target = self.target - scale * (dx * right + dy * down)
+
+    def zoom(self, steps: float) -> None:
+        """Dolly towards (steps > 0) or away from the target; 10% per step."""
+        self._release_exact()
+        self.distance = float(np.clip(self.distance * 0.9 ** steps, 1e-4, 1e6))
+
+    def fly(self, forward: float, right: float, upward: float, dt: float, speed: float) -> None:
+        """Move eye and target along the view axes (WASD / QE), `speed` world units per second."""
+        if forward == right == upward == 0:
+            return
+        self._release_exact()
+        r, d, f = self.basis()
+        self.target = self.target + dt * speed * (forward * f + right * r - upward * d)
+
+    def snap(self, camera: Camera) -> None:
+        """Show exactly `camera`'s pose and vertical FOV (until the next interaction)."""
+        self.exact_c2w = np.array(camera.c2w)
+        self.exact_fov = math.degrees(camera.fov_y)
+
+    def reset(self, framing: Framing, azimuth: float = 45.0, elevation: float = 20.0) -> None:
+        """Frame a model: look at its centre from a distance that fits it in the field of view."""
+        self.exact_c2w, self.exact_fov = None, None
+        self.target = np.array(framing.center, np.float64)
+        self.distance = framing.distance(self.fov)
+        self.azimuth, self.elevation = azimuth, elevation
+
+
+@dataclass
+class Playback:
+    """Model time of the app: ``time`` in ``time_range``, advancing while ``playing``.
+
+    ``speed`` 1 plays one pass through the time range every `loop_seconds`; ``loop`` wraps at the end, otherwise
+    playback stops there.
+    """
+
+    time_range: tuple[float, float] = (0.0, 1.0)
+    time: float = 0.0
+    playing: bool = True
+    speed: float = 1.0
+    loop: bool = True
+    loop_seconds: float = 2.0
+
+    def advance(self, dt: float) -> float:
+        """Move time on by `dt` wall-clock seconds; returns the new time."""
+        if not self.playing:
+            return self.time
+        t0, t1 = self.time_range
+        span = t1 - t0
+        t = self.time + dt * self.speed * span / self.loop_seconds
+        if self.loop:
+            t = t0 + math.fmod(t - t0, span)
+            if t < t0:
+                t += span
+        elif t >= t1 or t <= t0:
+            t = min(max(t, t0), t1)
+            self.playing = False
+        self.time = t
+        return t
+
+    def set_range(self, time_range: tuple[float, float]) -> None:
+        self.time_range = (float(time_range[0]), float(time_range[1]))
+        self.time = min(max(self.time, self.time_range[0]), self.time_range[1])

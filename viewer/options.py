@@ -1,0 +1,73 @@
+"""Parsing of the options shared by ``splat4d view`` and ``splat4d render`` (sizes, colours, vectors)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from splat4d.errors import Splat4DError
+
+_NAMED_COLORS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "grey": (0.5, 0.5, 0.5),
+                 "gray": (0.5, 0.5, 0.5)}
+
+
+class OptionError(Splat4DError):
+    """A command-line value that cannot be parsed."""
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'1280x720' -> (1280, 720)."""
+    parts = str(text).lower().replace("*", "x").split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise OptionError(f"size must look like WIDTHxHEIGHT (e.g. 1280x720), got {text!r}") from None
+    if not (0 < w <= 16384 and 0 < h <= 16384):
+        raise OptionError(f"size must be between 1x1 and 16384x16384, got {text!r}")
+    return w, h
+
+
+def parse_vector(text: str, n: int = 3, what: str = "vector") -> tuple[float, ...]:
+    """'0,0,1' -> (0.0, 0.0, 1.0)."""
+    try:
+        v = tuple(float(x) for x in str(text).replace(" ", "").split(","))
+    except ValueError:
+        v = ()
+    if len(v) != n or not all(math.isfinite(x) for x in v):
+        raise OptionError(f"{what} must be {n} comma-separated numbers, got {text!r}")
+    return v
+
+
+def parse_background(text: str | None) -> tuple[tuple[float, float, float] | None, bool]:
+    """(rgb or None for "the checkpoint's", transparent) from 'white', 'black', 'transparent', 'r,g,b' in [0, 1]
+    or '#rrggbb'."""
+    if text is None:
+        return None, False
+    t = str(text).strip().lower()
+    if t in ("transparent", "none", "alpha"):
+        return (0.0, 0.0, 0.0), True
+    if t in _NAMED_COLORS:
+        return _NAMED_COLORS[t], False
+    if t.startswith("#") and len(t) == 7:
+        try:
+            return tuple(int(t[i:i + 2], 16) / 255.0 for i in (1, 3, 5)), False  # type: ignore[return-value]
+        except ValueError:
+            pass
+    rgb = parse_vector(t, 3, "background") if "," in t else None
+    if rgb is None or not all(0.0 <= x <= 1.0 for x in rgb):
+        raise OptionError(f"background must be white, black, grey, transparent, #rrggbb or r,g,b in [0, 1], "
+                          f"got {text!r}")
+    return rgb, False  # type: ignore[return-value]
+
+
+def argtype(parse):
+    """Wrap a parser for argparse so that errors print as usage errors."""
+
+    def convert(text):
+        try:
+            return parse(text)
+        except OptionError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    convert.__name__ = parse.__name__.replace("parse_", "")
+    return convert

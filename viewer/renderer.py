@@ -1,0 +1,618 @@
+"""The moderngl splat renderer (OpenGL 3.3 core; the same code draws on EGL without a display and in a window).
+
+Per frame, three GL passes:
+
+1. **pre-pass** (``shaders/splat_preprocess.glsl``): one vertex-shader invocation per drawn Gaussian evaluates the
+   model at time t and projects it; the Gaussians are fed as GL_POINTS through an index buffer holding the depth
+   order at t (`splat4d.viewer.sorting`), and transform feedback writes their 2D footprints in that order. Doing
+   this once per Gaussian instead of once per quad corner is what makes a software rasterizer (Mesa llvmpipe)
+   usable.
+2. **draw** (``splat_draw.glsl``): one instanced quad per footprint, premultiplied alpha into a float32 target
+   cleared to 0, so colour = sum c a T and alpha = 1 - T exactly as the reference rasterizer composites.
+   Either back to front (ONE, ONE_MINUS_SRC_ALPHA), or (default) front to back (ONE_MINUS_DST_ALPHA, ONE) in
+   stages: between stages, pixels whose transmittance reached TRANSMITTANCE_THRESHOLD (where the reference stops)
+   are masked in the depth buffer and their tiles read back (``splat_screen.glsl``), so that later Gaussians
+   hidden behind them are rejected per fragment or skipped entirely. Same image, far less work in dense scenes.
+3. **resolve** (``splat_screen.glsl``): background, depth colour map or alpha view, into the display target
+   (an offscreen float texture, or the window).
+
+The per-Gaussian data of a native 4D model is uploaded once; a keyframed model is re-sliced and re-uploaded when t
+changes. The order is recomputed whenever the camera, t or the splat scale changed.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from splat4d.cameras import Camera
+from splat4d.constants import TILE_SIZE, TRANSMITTANCE_THRESHOLD
+from splat4d.errors import GLError
+from splat4d.gl import create_headless_context, load_program
+
+from . import splats as splatlib
+from .sorting import SortKey, SortResult, depth_order
+
+#: Display modes, in the order of the app's combo box.
+RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers")
+_MODE_ALIASES = {"colour": "color", "rgb": "color", "centres": "centers", "points": "centers",
+                 "ellipsoids": "outlines", "ellipses": "outlines"}
+#: How splats are blended; both give the reference composite (see `SplatRenderer`).
+COMPOSITE_ORDERS: tuple[str, ...] = ("front-to-back", "back-to-front")
+#: Bytes of one pre-processed Gaussian (4 vec4: geometry, axes, colour, tile rectangle).
+_SPLAT_BYTES = 64
+#: The vec4 fields of a pre-processed Gaussian, in buffer order (splat_draw.glsl attribute names).
+_SPLAT_FIELDS = ("i_geom", "i_axes", "i_color", "i_rect")
+_SH_TEX_WIDTH = 4096
+#: Front to back, splats are drawn in stages with early-stop masks in between; a stage has at least this many
+#: Gaussians (the masks would cost more than they save) ...
+_MIN_STAGE = 2048
+#: ... and fewer than this many visible Gaussians are drawn in one stage.
+_MIN_STAGED = 16384
+#: Tile edge (pixels) of the saturation read-back used to skip hidden Gaussians.
+_OCCLUSION_TILE = 4
+
+
+def parse_mode(name: str) -> str:
+    """Canonical render mode name; accepts British spellings and a few aliases."""
+    mode = _MODE_ALIASES.get(str(name).lower(), str(name).lower())
+    if mode not in RENDER_MODES:
+        raise GLError(f"unknown render mode {name!r}; expected one of {', '.join(RENDER_MODES)}")
+    return mode
+
+
+@dataclass
+class RenderSettings:
+    """How to draw a frame.
+
+    Attributes:
+        mode: one of `RENDER_MODES`.
+        splat_scale: multiplies every Gaussian's std-devs (1 = as trained).
+        sh_degree: displayed SH degree (None = the model's).
+        background: RGB in [0, 1] behind the splats.
+        transparent: keep the background transparent (premultiplied colour + alpha) instead of compositing.
+        depth_range: (near, far) of the depth colour map; None = the 2nd-98th percentile of the drawn depths.
+        composite: "front-to-back" (under-blending in batches, pixels stop once their transmittance reaches
+            TRANSMITTANCE_THRESHOLD, like the reference rasterizer) or "back-to-front" (over-blending, no early
+            stop). Same image either way (to float rounding and the 1e-4 early-stop residue).
+    """
+
+    mode: str = "color"
+    splat_scale: float = 1.0
+    sh_degree: int | None = None
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    transparent: bool = False
+    depth_range: tuple[float, float] | None = None
+    composite: str = "front-to-back"
+
+    def __post_init__(self) -> None:
+        self.mode = parse_mode(self.mode)
+        if self.composite not in COMPOSITE_ORDERS:
+            raise GLError(f"unknown composite order {self.composite!r}; expected one of {', '.join(COMPOSITE_ORDERS)}")
+        bg = tuple(float(x) for x in self.background)
+        if len(bg) != 3 or not all(np.isfinite(bg)):
+            raise GLError(f"background must be 3 finite numbers, got {self.background!r}")
+        self.background = bg  # type: ignore[assignment]
+        if not (np.isfinite(self.splat_scale) and self.splat_scale > 0):
+            raise GLError(f"splat scale must be positive, got {self.splat_scale}")
+
+
+@dataclass
+class FrameStats:
+    """What a frame cost and drew: `total` Gaussians, `visible` after culling (time, near plane, frustum) and
+    sorted, `drawn` after skipping those hidden behind opaque pixels."""
+
+    sort_ms: float = 0.0
+    draw_ms: float = 0.0
+    upload_ms: float = 0.0
+    visible: int = 0
+    drawn: int = 0
+    total: int = 0
+    resorted: bool = False
+    depth_range: tuple[float, float] = (0.0, 1.0)
+
+    @property
+    def frame_ms(self) -> float:
+        return self.sort_ms + self.draw_ms + self.upload_ms
+
+
+@dataclass
+class _Targets:
+    size: tuple[int, int]
+    accum_tex: object
+    depth_rb: object
+    accum_fbo: object
+    mask_fbo: object
+    display_tex: object
+    display_fbo: object
+    tiles_tex: object
+    tiles_fbo: object
+
+    def release(self) -> None:
+        for obj in (self.accum_fbo, self.mask_fbo, self.display_fbo, self.tiles_fbo, self.accum_tex, self.depth_rb,
+                    self.display_tex, self.tiles_tex):
+            obj.release()
+
+
+class _EGLCurrent:
+    """Save and restore whichever EGL context is current (e.g. another library's), around our own GL work.
+
+    moderngl's ``with ctx`` makes `ctx` current but on exit leaves *no* EGL context current instead of the previous
+    one, which breaks code that relies on its own standalone context staying current.
+    """
+
+    _lib = None
+
+    def __init__(self) -> None:
+        lib = self._load()
+        self.saved = None
+        if lib is not None and lib.eglGetCurrentContext():
+            self.saved = (lib.eglGetCurrentDisplay(), lib.eglGetCurrentSurface(0x3059),  # EGL_DRAW
+                          lib.eglGetCurrentSurface(0x305A), lib.eglGetCurrentContext())  # EGL_READ
+
+    def restore(self) -> None:
+        if self.saved is not None:
+            self._lib.eglMakeCurrent(*self.saved)
+
+    @classmethod
+    def _load(cls):
+        if cls._lib is None:
+            try:
+                lib = ctypes.CDLL("libEGL.so.1")
+            except OSError:
+                cls._lib = False
+                return None
+            for name in ("eglGetCurrentContext", "eglGetCurrentDisplay", "eglGetCurrentSurface"):
+                getattr(lib, name).restype = ctypes.c_void_p
+            lib.eglGetCurrentSurface.argtypes = [ctypes.c_int]
+            lib.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+            lib.eglMakeCurrent.restype = ctypes.c_uint
+            cls._lib = lib
+        return cls._lib or None
+
+
+def _gl(method):
+    """Run a method with the renderer's context current, then give the previous EGL context back.
+
+    Several standalone contexts may live in one process and moderngl sends calls to whichever is current, not to
+    the object's own; so GL work is bracketed by ``with ctx`` (once: nesting a moderngl context is not supported).
+    """
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        if self._gl_depth:
+            return method(self, *args, **kwargs)
+        previous = _EGLCurrent()
+        self._gl_depth += 1
+        try:
+            with self.ctx:
+                return method(self, *args, **kwargs)
+        finally:
+            self._gl_depth -= 1
+            previous.restore()
+
+    return wrapper
+
+
+class SplatRenderer:
+    """Draws a splat4d model with a moderngl context (standalone EGL or a window's).
+
+    Typical use::
+
+        r = SplatRenderer(ctx, model)
+        stats = r.render(camera, t, RenderSettings(background=(1, 1, 1)))
+        rgba = r.read_display()            # [H, W, 4] float32, top row first
+
+    `render` sorts synchronously when the view changed (offline rendering); an interactive caller can instead
+    pass its own (possibly slightly stale) `SortResult` via ``order=``.
+    """
+
+    def __init__(self, ctx, model=None) -> None:
+        if ctx.version_code < 330:
+            raise GLError(f"OpenGL 3.3 or newer is required, this context offers {ctx.version_code}")
+        self.ctx = ctx
+        self._gl_depth = 0
+        self._init_programs()
+        self._pre_progs: dict[tuple, object] = {}
+        self._targets: _Targets | None = None
+        self._model = None
+        self.splats: splatlib.SplatArrays | None = None
+        self._gpu_n = 0
+        self._order: SortResult | None = None
+        if model is not None:
+            self.set_model(model)
+
+    @_gl
+    def _init_programs(self) -> None:
+        ctx = self.ctx
+        self._draw_prog = load_program(ctx, "splat_draw")
+        self._resolve_prog, self._mask_prog, self._tiles_prog = (
+            load_program(ctx, "splat_screen", {"SCREEN_PASS": k, "OCCLUSION_TILE": _OCCLUSION_TILE}) for k in range(3))
+        self._resolve_vao = ctx.vertex_array(self._resolve_prog, [])
+        self._mask_vao = ctx.vertex_array(self._mask_prog, [])
+        self._tiles_vao = ctx.vertex_array(self._tiles_prog, [])
+
+    # --- model ------------------------------------------------------------------------------------------------
+    @property
+    def model(self):
+        return self._model
+
+    @property
+    def per_frame_upload(self) -> bool:
+        return splatlib.needs_per_frame_upload(self._model)
+
+    @_gl
+    def set_model(self, model, t: float | None = None) -> None:
+        """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`)."""
+        arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
+        self._model = model
+        self._upload(arrays)
+
+    def _upload(self, arrays: splatlib.SplatArrays) -> None:
+        ctx = self.ctx
+        n = len(arrays)
+        attrs = np.concatenate([arrays.mean_t, arrays.motion, arrays.cov], axis=1).astype(np.float32)
+        texels = arrays.sh_texels
+        width = _SH_TEX_WIDTH
+        rows = max(1, -(-n * texels // width))
+        max_size = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
+        if rows > max_size:
+            width = max_size
+            rows = max(1, -(-n * texels // width))
+            if rows > max_size:
+                raise GLError(f"{n:,} Gaussians with {arrays.num_coeffs} colour coefficients exceed this GPU's "
+                              f"texture limits ({max_size}x{max_size}); lower the SH degree")
+        sh = np.zeros((rows * width, 4), np.float32)
+        sh[: n * texels] = arrays.sh.reshape(-1, 4)
+        old = self.splats
+        same_layout = (old is not None and self._gpu_n == n and old.sh_texels == texels
+                       and (old.sh_degree, old.sh_degree_t) == (arrays.sh_degree, arrays.sh_degree_t)
+                       and self._sh_tex.size == (width, rows))
+        if same_layout:  # keyframed re-slice: rewrite in place
+            self._attr_buf.write(attrs.tobytes())
+            self._sh_tex.write(sh.tobytes())
+        else:
+            self._release_model()
+            cap = max(n, 1)
+            self._attr_buf = ctx.buffer(attrs.tobytes() if n else b"\0" * 64)
+            self._sh_tex = ctx.texture((width, rows), 4, sh.tobytes(), dtype="f4")
+            self._sh_tex.filter = (0x2600, 0x2600)  # GL_NEAREST: texelFetch only
+            self._ibo = ctx.buffer(reserve=4 * cap)
+            self._splat_buf = ctx.buffer(reserve=_SPLAT_BYTES * cap)
+            used = [name for name in _SPLAT_FIELDS if name in self._draw_prog]
+            fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS) + "/i"
+            self._draw_vao = ctx.vertex_array(self._draw_prog, [(self._splat_buf, fmt, *used)])
+            prog = self._pre_program(arrays.sh_degree, arrays.sh_degree_t, texels, width)
+            self._pre_vao = ctx.vertex_array(
+                prog, [(self._attr_buf, "4f 4f 4f 4f", "a_mean_t", "a_motion", "a_cov_a", "a_cov_b")],
+                index_buffer=self._ibo, index_element_size=4)
+            self._pre_prog = prog
+            self._order = None
+        self._gpu_n = n
+        self.splats = arrays
+
+    def _release_model(self) -> None:
+        for name in ("_pre_vao", "_draw_vao", "_attr_buf", "_sh_tex", "_ibo", "_splat_buf"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.release()
+                setattr(self, name, None)
+
+    def _pre_program(self, degree: int, degree_t: int, texels: int, width: int):
+        key = (degree, degree_t, texels, width)
+        if key not in self._pre_progs:
+            self._pre_progs[key] = load_program(
+                self.ctx, "splat_preprocess",
+                {"SH_DEGREE": degree, "SH_DEGREE_T": degree_t, "SH_TEXELS": texels, "SH_TEX_WIDTH": width,
+                 "TILE_SIZE": TILE_SIZE},
+                varyings=["o_geom", "o_axes", "o_color", "o_rect"], varyings_capture_mode="interleaved")
+        return self._pre_progs[key]
+
+    @_gl
+    def splats_at(self, t: float) -> splatlib.SplatArrays:
+        """The GPU arrays valid at time `t` (re-slices and re-uploads a keyframed model when t changed)."""
+        if self.splats is None:
+            raise GLError("no model loaded")
+        if self.per_frame_upload and self.splats.time != float(t):
+            self._upload(splatlib.to_arrays(self._model, float(t)))
+        return self.splats
+
+    # --- sorting ----------------------------------------------------------------------------------------------
+    def sort(self, camera: Camera, t: float, scale: float = 1.0) -> SortResult:
+        """Synchronous back-to-front order at (camera, t); reused while the view does not change."""
+        key = SortKey.of(camera, t, scale)
+        splats = self.splats_at(t)
+        if self._order is None or self._order.key != key:
+            self._order = depth_order(splats, camera, t, scale)
+        return self._order
+
+    # --- targets ----------------------------------------------------------------------------------------------
+    def _ensure_targets(self, size: tuple[int, int]) -> _Targets:
+        if self._targets is not None and self._targets.size == size:
+            return self._targets
+        if self._targets is not None:
+            self._targets.release()
+        max_size = int(self.ctx.info.get("GL_MAX_RENDERBUFFER_SIZE", 16384))
+        if size[0] > max_size or size[1] > max_size:
+            raise GLError(f"image size {size[0]}x{size[1]} exceeds this GPU's limit of {max_size} pixels")
+        ctx = self.ctx
+        accum = ctx.texture(size, 4, dtype="f4")
+        accum.filter = (0x2600, 0x2600)
+        depth = ctx.depth_renderbuffer(size)
+        display = ctx.texture(size, 4, dtype="f4")
+        tiles = ctx.texture((-(-size[0] // _OCCLUSION_TILE), -(-size[1] // _OCCLUSION_TILE)), 1, dtype="f1")
+        self._targets = _Targets(size, accum, depth, ctx.framebuffer([accum], depth), ctx.framebuffer([], depth),
+                                 display, ctx.framebuffer([display]), tiles, ctx.framebuffer([tiles]))
+        return self._targets
+
+    # --- drawing ----------------------------------------------------------------------------------------------
+    @_gl
+    def render(self, camera: Camera, t: float, settings: RenderSettings | None = None,
+               order: SortResult | None = None, target=None, viewport=None, sync: bool = True) -> FrameStats:
+        """Draw the model seen by `camera` at time `t`.
+
+        Args:
+            order: a back-to-front order to draw with (e.g. the newest one of an `AsyncSorter`); None sorts now
+                (or reuses the order of the same view).
+            target: framebuffer for the resolved image (e.g. ``ctx.screen``); None = the offscreen display
+                texture read by `read_display`.
+            viewport: (x, y, w, h) in `target`; default the whole camera image.
+            sync: wait for the GPU so that ``draw_ms`` is the real cost.
+        """
+        settings = settings or RenderSettings()
+        stats = FrameStats(total=self._gpu_n)
+        start = time.perf_counter()
+        splats = self.splats_at(t)
+        stats.upload_ms = (time.perf_counter() - start) * 1e3
+        if order is None:
+            before = self._order
+            order = self.sort(camera, t, settings.splat_scale)
+            stats.resorted = order is not before
+            stats.sort_ms = order.ms if stats.resorted else 0.0
+        stats.visible = order.visible
+        stats.depth_range = settings.depth_range or order.depth_range
+
+        start = time.perf_counter()
+        tg = self._ensure_targets((camera.width, camera.height))
+        tg.accum_fbo.use()
+        tg.accum_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if order.visible:
+            stats.drawn = self._draw_splats(camera, t, settings, splats, order)
+        self._resolve(settings, stats.depth_range, target, viewport or (0, 0, camera.width, camera.height))
+        if sync:
+            self.ctx.finish()
+        stats.draw_ms = (time.perf_counter() - start) * 1e3
+        return stats
+
+    def _draw_splats(self, camera: Camera, t: float, settings: RenderSettings, splats, order: SortResult) -> int:
+        """Pre-pass + instanced quads. Front to back, the order is drawn in stages (`_stages`); after each stage
+        the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD, where the reference rasterizer stops) are
+        marked in the depth buffer, so later fragments there are rejected before shading, and their tiles are
+        read back, so later Gaussians whose screen box lies entirely in saturated tiles are not drawn at all.
+        Neither changes the image: such Gaussians could only add to pixels that no longer change."""
+        ctx, tg = self.ctx, self._targets
+        front_to_back = settings.composite == "front-to-back"
+        indices = order.order[::-1] if front_to_back else order.order
+        boxes = order.boxes[::-1] if front_to_back else order.boxes
+        self._set_pre_uniforms(camera, t, settings, splats)
+        _set_uniforms(self._draw_prog, u_size=(camera.width, camera.height), u_height=camera.height,
+                      u_mode=RENDER_MODES.index(settings.mode))
+        _set_uniforms(self._mask_prog, u_accum=0)
+        _set_uniforms(self._tiles_prog, u_accum=0)
+        stages = _stages(len(indices)) if front_to_back and settings.mode not in ("outlines", "centers") \
+            else [(0, len(indices))]
+        ctx.blend_equation = ctx.FUNC_ADD
+        ctx.depth_func = "<"
+        saturated, drawn = None, 0
+        covered = np.array([np.inf, np.inf, -np.inf, -np.inf])  # pixel box (x0, y0, x1, y1) drawn so far
+        for k, (first, end) in enumerate(stages):
+            idx, stage_boxes = indices[first:end], boxes[first:end]
+            if saturated is not None:
+                keep = ~_hidden(stage_boxes, saturated, camera.height)
+                idx, stage_boxes = idx[keep], stage_boxes[keep]
+            self._draw_stage(np.ascontiguousarray(idx, dtype=np.uint32), front_to_back, len(stages) > 1)
+            drawn += len(idx)
+            if k + 1 < len(stages):
+                if len(idx):
+                    u, v, r = stage_boxes[:, 0], stage_boxes[:, 1], stage_boxes[:, 2]
+                    covered = np.minimum(covered, [(u - r).min(), (v - r).min(), np.inf, np.inf])
+                    covered = np.maximum(covered, [-np.inf, -np.inf, (u + r).max(), (v + r).max()])
+                saturated = self._mark_saturated(covered)
+        ctx.disable(ctx.DEPTH_TEST)
+        return drawn
+
+    def _mark_saturated(self, covered: np.ndarray) -> np.ndarray:
+        """Depth 0 on the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD); returns the summed-area table
+        of the saturated tiles (`_saturated_table`). Both passes only visit `covered` (x0, y0, x1, y1: the pixels
+        drawn so far, top-down), outside of which nothing can be saturated."""
+        ctx, tg = self.ctx, self._targets
+        w, h = tg.size
+        tile = _OCCLUSION_TILE
+        x0, x1 = int(np.clip(np.floor(covered[0]), 0, w)), int(np.clip(np.ceil(covered[2]), 0, w))
+        y0, y1 = int(np.clip(np.floor(h - covered[3]), 0, h)), int(np.clip(np.ceil(h - covered[1]), 0, h))  # GL
+        ctx.disable(ctx.BLEND)
+        tg.accum_tex.use(0)
+        tg.tiles_fbo.scissor = None
+        tg.tiles_fbo.use()
+        tg.tiles_fbo.clear(0.0)
+        if x1 > x0 and y1 > y0:
+            tg.mask_fbo.scissor = (x0, y0, x1 - x0, y1 - y0)
+            tg.mask_fbo.use()
+            ctx.enable(ctx.DEPTH_TEST)
+            self._mask_vao.render(ctx.TRIANGLES, vertices=3)
+            ctx.disable(ctx.DEPTH_TEST)
+            tg.mask_fbo.scissor = None
+            tx0, ty0 = x0 // tile, y0 // tile
+            tg.tiles_fbo.scissor = (tx0, ty0, -(-x1 // tile) - tx0, -(-y1 // tile) - ty0)
+            tg.tiles_fbo.use()
+            self._tiles_vao.render(ctx.TRIANGLES, vertices=3)
+            tg.tiles_fbo.scissor = None
+        tw, th = tg.tiles_tex.size
+        flags = np.frombuffer(tg.tiles_fbo.read(components=1, dtype="f1"), np.uint8).reshape(th, tw)
+        return _saturated_table(flags[::-1] > 127)
+
+    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool) -> None:
+        """Pre-process the Gaussians `idx` (in draw order) and draw them as instanced quads."""
+        if not idx.shape[0]:
+            return
+        ctx, tg = self.ctx, self._targets
+        self._ibo.write(idx.tobytes())
+        self._sh_tex.use(0)
+        ctx.disable(ctx.BLEND | ctx.DEPTH_TEST)
+        tg.accum_fbo.use()
+        self._pre_vao.transform(self._splat_buf, ctx.POINTS, vertices=idx.shape[0])
+        ctx.enable(ctx.BLEND | ctx.DEPTH_TEST) if depth_test else ctx.enable(ctx.BLEND)
+        ctx.blend_func = ((ctx.ONE_MINUS_DST_ALPHA, ctx.ONE) if front_to_back
+                          else (ctx.ONE, ctx.ONE_MINUS_SRC_ALPHA))
+        tg.accum_fbo.depth_mask = False
+        self._bind_splats(0)
+        self._draw_vao.render(ctx.TRIANGLE_STRIP, vertices=4, instances=idx.shape[0])
+        tg.accum_fbo.depth_mask = True
+
+    def _bind_splats(self, first: int) -> None:
+        """Point the draw VAO's per-instance attributes at splat `first` of the splat buffer."""
+        for k, name in enumerate(_SPLAT_FIELDS):
+            if name not in self._draw_prog:
+                continue
+            self._draw_vao.bind(self._draw_prog[name].location, "f", self._splat_buf, "4f",
+                                offset=first * _SPLAT_BYTES + 16 * k,
+                                stride=_SPLAT_BYTES, divisor=1)
+
+    def _set_pre_uniforms(self, camera: Camera, t: float, settings: RenderSettings,
+                          splats: splatlib.SplatArrays) -> None:
+        w2c = camera.w2c
+        degree = splats.sh_degree if settings.sh_degree is None else max(0, min(int(settings.sh_degree),
+                                                                                 splats.sh_degree))
+        _set_uniforms(self._pre_prog, u_rot=np.ascontiguousarray(w2c[:3, :3].T, np.float32),  # column-major
+                      u_trans=w2c[:3, 3], u_campos=camera.position,
+                      u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
+                      u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
+                      u_scale=settings.splat_scale, u_sh_degree=degree, u_sh=0)
+
+    def _resolve(self, settings: RenderSettings, depth_range, target, viewport) -> None:
+        tg = self._targets
+        fbo = tg.display_fbo if target is None else target
+        fbo.use()
+        fbo.viewport = viewport
+        self.ctx.disable(self.ctx.BLEND)
+        tg.accum_tex.use(0)
+        bg_alpha = 0.0 if settings.transparent else 1.0
+        _set_uniforms(self._resolve_prog, u_accum=0, u_offset=viewport[:2], u_mode=RENDER_MODES.index(settings.mode),
+                      u_background=tuple(float(c) * bg_alpha for c in settings.background) + (bg_alpha,),
+                      u_depth_range=depth_range)
+        self._resolve_vao.render(self.ctx.TRIANGLES, vertices=3)
+
+    # --- read-back --------------------------------------------------------------------------------------------
+    @_gl
+    def read_display(self) -> np.ndarray:
+        """The last resolved offscreen image, ``[H, W, 4]`` float32 RGBA (premultiplied), top row first."""
+        return self._read(self._targets.display_tex)
+
+    @_gl
+    def read_accumulation(self) -> np.ndarray:
+        """The raw accumulation ``[H, W, 4]``: rgb = sum c a T (or expected depth in depth mode), alpha = 1 - T."""
+        return self._read(self._targets.accum_tex)
+
+    def _read(self, tex) -> np.ndarray:
+        if self._targets is None:
+            raise GLError("nothing has been rendered yet")
+        w, h = tex.size
+        data = np.frombuffer(tex.read(), np.float32).reshape(h, w, 4)
+        return np.ascontiguousarray(data[::-1])
+
+    @_gl
+    def release(self) -> None:
+        self._release_model()
+        if self._targets is not None:
+            self._targets.release()
+            self._targets = None
+
+
+def _stages(count: int) -> list[tuple[int, int]]:
+    """[first, end) draw stages of a front-to-back order: the nearest 1/128, then each stage as long as all before
+    it (1/128, 1/64, ... 1/2, the rest); stages shorter than _MIN_STAGE are merged into the next."""
+    if count < _MIN_STAGED:
+        return [(0, count)]
+    ends = [count >> k for k in range(7, 0, -1)] + [count]
+    out, first = [], 0
+    for end in ends:
+        if end - first >= _MIN_STAGE or end == count:
+            out.append((first, end))
+            first = end
+    return out
+
+
+def _saturated_table(saturated: np.ndarray) -> np.ndarray:
+    """Summed-area table ``[ty + 1, tx + 1]`` of `saturated` tile flags given top row first.
+
+    The tiles are counted from the image's lower-left corner (GL's origin), so when the height is not a multiple of
+    _OCCLUSION_TILE the top row of tiles hangs over the image top by `pad` pixels; `_hidden` shifts boxes by that.
+    """
+    table = np.zeros((saturated.shape[0] + 1, saturated.shape[1] + 1), np.int32)
+    table[1:, 1:] = saturated.cumsum(0).cumsum(1)
+    return table
+
+
+def _hidden(boxes: np.ndarray, table: np.ndarray, height: int) -> np.ndarray:
+    """``[M]`` bool: the screen box (u, v, r) of each Gaussian lies entirely in saturated tiles (`table`, from
+    `_saturated_table` for an image `height` pixels high)."""
+    th, tw = table.shape[0] - 1, table.shape[1] - 1
+    pad = th * _OCCLUSION_TILE - height  # tiles start at the bottom edge: shift y (top-down) by the overhang
+    u, v, r = boxes[:, 0], boxes[:, 1] + pad, boxes[:, 2]
+    x0 = np.clip(np.floor((u - r) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64)
+    x1 = np.clip(np.floor((u + r) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64) + 1
+    y0 = np.clip(np.floor((v - r) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64)
+    y1 = np.clip(np.floor((v + r) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64) + 1
+    count = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
+    return count == (x1 - x0) * (y1 - y0)
+
+
+def _set_uniforms(prog, **values) -> None:
+    """Set uniforms by name, skipping those the GLSL compiler optimised away (e.g. u_campos at SH degree 0).
+
+    2-D numpy arrays are written as raw float32 bytes (matrices, already column-major); other values are cast to
+    the uniform's own type (int or float, scalar or vector).
+    """
+    for name, value in values.items():
+        if name not in prog:
+            continue
+        uniform = prog[name]
+        if isinstance(value, np.ndarray) and value.ndim == 2:
+            uniform.write(value.astype(np.float32).tobytes())
+            continue
+        cast = int if uniform.fmt.endswith("i") else float
+        if np.ndim(value) == 0:
+            uniform.value = cast(value)
+        else:
+            uniform.value = tuple(cast(v) for v in value)
+
+
+_HEADLESS: dict[str, object] = {}
+
+
+def headless_context():
+    """The viewer's process-wide EGL context (created on first use, leaving whatever context was current so)."""
+    if "ctx" not in _HEADLESS:
+        previous = _EGLCurrent()
+        _HEADLESS["ctx"] = create_headless_context(330)
+        previous.restore()
+    return _HEADLESS["ctx"]
+
+
+def render_image(model, camera: Camera, t: float, settings: RenderSettings | None = None,
+                 renderer: SplatRenderer | None = None) -> np.ndarray:
+    """Render one image offscreen (EGL): ``[H, W, 4]`` float32, top row first.
+
+    With an opaque background the rgb is the composited image and alpha is 1; with ``settings.transparent`` the rgb
+    is premultiplied by the alpha channel.
+    """
+    r = renderer or SplatRenderer(headless_context(), model)
+    r.render(camera, t, settings)
+    img = r.read_display()
+    if renderer is None:
+        r.release()
+    return img

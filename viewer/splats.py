@@ -1,0 +1,170 @@
+"""Per-Gaussian arrays in the layout the GL renderer uploads (one instance per Gaussian).
+
+A native 4D model is converted **once**: everything that does not depend on t (the conditional covariance, the
+velocity of the conditional mean, the temporal variance; `splat4d.covariance.condition_on_time`) is computed here
+on the CPU, and the vertex shader only evaluates the t-dependent part each frame (mean moving linearly in t,
+temporal opacity factor and its cull, SH with the cosine time terms). A keyframed model has no closed form in t,
+so its slice at t (`KeyframedGaussians.slice`) is converted instead, once per displayed time.
+
+Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coefficients)::
+
+    mean_t  [N, 4]  mean xyz (at the temporal mean), temporal mean mu_t
+    motion  [N, 4]  velocity xyz (d mean / dt), 1 / (2 Sigma_tt)  (0: no temporal fade, e.g. a keyframed slice)
+    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), largest std-dev
+    sh      [N, S]  the M x 3 colour coefficients flattened coefficient-major (r g b of coefficient 0, then 1, ...)
+                    and zero-padded to S = 4 * ceil(3 M / 4) floats (whole RGBA texels)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from splat4d import sh as shlib
+from splat4d.covariance import condition_on_time
+from splat4d.errors import ModelError
+from splat4d.model import Gaussians3D, Gaussians4D, KeyframedGaussians
+
+_COV_TRIU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+
+@dataclass
+class SplatArrays:
+    """GPU-ready per-Gaussian arrays of one model (see module doc for the layout).
+
+    Attributes:
+        mean_t, motion: ``[N, 4]`` float32.
+        cov: ``[N, 8]`` float32.
+        sh: ``[N, S]`` float32, S a multiple of 4.
+        sh_degree: spatial SH degree 0..3.
+        sh_degree_t: number of cosine time terms beyond the constant one (0..2).
+        duration: T = t1 - t0, the period scale of the time terms.
+        time_range: (t0, t1) of the source model.
+        static_in_time: True when the arrays are a keyframed slice valid at one time only (`time`).
+        time: the time a keyframed slice was taken at (None for native 4D arrays, valid at every t).
+    """
+
+    mean_t: np.ndarray
+    motion: np.ndarray
+    cov: np.ndarray
+    sh: np.ndarray
+    sh_degree: int
+    sh_degree_t: int
+    duration: float
+    time_range: tuple[float, float]
+    time: float | None = None
+
+    def __len__(self) -> int:
+        return self.mean_t.shape[0]
+
+    @property
+    def num_coeffs(self) -> int:
+        """M, colour coefficients per channel."""
+        return shlib.num_sh_coeffs(self.sh_degree, self.sh_degree_t)
+
+    @property
+    def sh_texels(self) -> int:
+        """RGBA texels per Gaussian in the SH texture."""
+        return self.sh.shape[1] // 4
+
+    @property
+    def opacity(self) -> np.ndarray:
+        return self.cov[:, 6]
+
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.mean_t, self.motion, self.cov, self.sh))
+
+
+def _np32(x: torch.Tensor) -> np.ndarray:
+    return x.detach().to("cpu", torch.float32).numpy()
+
+
+def _pack_sh(coeffs: torch.Tensor) -> np.ndarray:
+    """``[N, M, 3]`` -> ``[N, 4 ceil(3M/4)]`` float32, coefficient-major, zero-padded."""
+    n, m, _ = coeffs.shape
+    flat = _np32(coeffs.reshape(n, 3 * m))
+    width = 4 * ((3 * m + 3) // 4)
+    out = np.zeros((n, width), np.float32)
+    out[:, : 3 * m] = flat
+    return out
+
+
+def _pack_cov(cov3: torch.Tensor, opacity: torch.Tensor) -> np.ndarray:
+    """``[N, 3, 3]`` covariances + ``[N]`` opacities -> ``[N, 8]`` (upper triangle, opacity, largest std-dev)."""
+    n = cov3.shape[0]
+    out = np.empty((n, 8), np.float32)
+    for k, (i, j) in enumerate(_COV_TRIU):
+        out[:, k] = _np32(cov3[:, i, j])
+    out[:, 6] = _np32(opacity)
+    # the largest std-dev bounds the footprint (CPU culling); rounded up so float32 never undershoots
+    top = torch.linalg.eigvalsh(cov3.double())[:, -1].clamp_min(0).sqrt() * (1.0 + 1e-5)
+    out[:, 7] = _np32(top)
+    return out
+
+
+def _check_finite(name: str, *arrays: np.ndarray) -> None:
+    for a in arrays:
+        if not np.isfinite(a).all():
+            raise ModelError(f"{name}: model produces NaN or infinite values (bad covariances or temporal scales)")
+
+
+def from_gaussians4d(model: Gaussians4D) -> SplatArrays:
+    """Time-independent arrays of a native 4D model (computed in float64, stored as float32)."""
+    with torch.no_grad():
+        m = model.detach().to(device="cpu", dtype=torch.float64)
+        cov3, velocity, var_t = condition_on_time(m.covariance_4d())
+        n = len(m)
+        mean_t = np.empty((n, 4), np.float32)
+        mean_t[:, :3] = _np32(m.means)
+        mean_t[:, 3] = _np32(m.t_means)
+        motion = np.empty((n, 4), np.float32)
+        motion[:, :3] = _np32(velocity)
+        motion[:, 3] = _np32(0.5 / var_t)
+        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(cov3, m.opacities), sh=_pack_sh(m.sh_coeffs),
+                          sh_degree=m.sh_degree, sh_degree_t=m.sh_degree_t, duration=m.duration,
+                          time_range=m.time_range)
+    _check_finite("Gaussians4D", out.mean_t, out.motion, out.cov, out.sh)
+    return out
+
+
+def from_gaussians3d(g: Gaussians3D, time: float, time_range: tuple[float, float] = (0.0, 1.0)) -> SplatArrays:
+    """Arrays of a 3D slice (static at `time`): no motion, no temporal fade; Gaussians not `visible` get opacity 0."""
+    with torch.no_grad():
+        n = len(g)
+        mean_t = np.empty((n, 4), np.float32)
+        mean_t[:, :3] = _np32(g.means)
+        mean_t[:, 3] = time
+        motion = np.zeros((n, 4), np.float32)
+        opacity = torch.where(g.visible.to(g.opacities.device), g.opacities, torch.zeros_like(g.opacities))
+        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(g.covariances.double(), opacity),
+                          sh=_pack_sh(g.sh), sh_degree=g.sh_degree, sh_degree_t=0,
+                          duration=float(time_range[1] - time_range[0]) or 1.0, time_range=tuple(time_range),
+                          time=float(time))
+    _check_finite("Gaussians3D", out.mean_t, out.cov, out.sh)
+    return out
+
+
+def from_keyframed(model: KeyframedGaussians, t: float) -> SplatArrays:
+    """Arrays of a keyframed model's slice at `t` (re-made whenever the displayed time changes)."""
+    with torch.no_grad():
+        return from_gaussians3d(model.slice(float(t)), float(t), model.time_range)
+
+
+def needs_per_frame_upload(model) -> bool:
+    """True for models whose GPU data must be re-made when t changes (keyframed), False for native 4D."""
+    return isinstance(model, KeyframedGaussians)
+
+
+def to_arrays(model, t: float | None = None) -> SplatArrays:
+    """Arrays for any model: native 4D (valid for all t), keyframed (slice at `t`) or a `Gaussians3D`."""
+    if isinstance(model, Gaussians4D):
+        return from_gaussians4d(model)
+    t0 = float(model.time_range[0]) if hasattr(model, "time_range") else 0.0
+    if isinstance(model, KeyframedGaussians):
+        return from_keyframed(model, t0 if t is None else t)
+    if isinstance(model, Gaussians3D):
+        return from_gaussians3d(model, 0.0 if t is None else t)
+    raise ModelError(f"cannot render a {type(model).__name__}; expected Gaussians4D, KeyframedGaussians or "
+                     f"Gaussians3D")

@@ -17,7 +17,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.gl import create_headless_context, load_program
+from splat4d.gl import create_headless_context, load_program, with_context
 
 from .geometry import Mesh
 
@@ -69,15 +69,19 @@ class MeshRenderer:
 
     def __init__(self, ctx=None, supersample: int = 2, msaa: int = 4) -> None:
         self.ctx = ctx if ctx is not None else create_headless_context()
-        self.program = load_program(self.ctx, "mesh")
         self.supersample = max(1, int(supersample))
+        self._targets: dict[tuple[int, int], _Target] = {}
+        self._vao = None
+        self._buffers: list = []
+        self._setup(msaa)
+
+    @with_context
+    def _setup(self, msaa: int) -> None:
+        self.program = load_program(self.ctx, "mesh")
         self.msaa = max(1, min(int(msaa), int(self.ctx.max_samples)))
         self.program["u_light_dir"].value = tuple(float(x) for x in LIGHT_DIR)
         self.program["u_ambient"].value = AMBIENT
         self.program["u_diffuse"].value = DIFFUSE
-        self._targets: dict[tuple[int, int], _Target] = {}
-        self._vao = None
-        self._buffers: list = []
 
     # --- resources -------------------------------------------------------------------------------------------
     def _target(self, width: int, height: int) -> _Target:
@@ -97,6 +101,7 @@ class MeshRenderer:
                 obj.release()
         self._vao, self._buffers = None, []
 
+    @with_context
     def upload(self, mesh: Mesh) -> None:
         """Make `mesh` the one that `draw` renders (positions, normals and colours as float32)."""
         self._release_mesh()
@@ -107,6 +112,7 @@ class MeshRenderer:
                                           index_buffer=ibo, index_element_size=4)
         self._buffers = [vbo, ibo]
 
+    @with_context
     def draw(self, camera: Camera) -> np.ndarray:
         """``(H, W, 4)`` uint8 straight-alpha RGBA of the uploaded mesh seen by `camera` (rows top first)."""
         if self._vao is None:
@@ -135,6 +141,7 @@ class MeshRenderer:
         for cam in cameras:
             yield self.draw(cam)
 
+    @with_context
     def release(self) -> None:
         """Free GL objects (the context itself belongs to the caller when it was passed in)."""
         self._release_mesh()

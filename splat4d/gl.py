@@ -9,6 +9,8 @@ at the right line of the file.
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import re
 from importlib import resources
 from typing import Mapping
@@ -84,3 +86,63 @@ def create_headless_context(require: int = 330):
             errors.append(f"{kwargs.get('backend', 'default')}: {str(exc).strip().splitlines()[0]}")
     raise GLError("no headless OpenGL context (install Mesa EGL: apt-get install libegl1 libgl1-mesa-dri): "
                   + "; ".join(errors))
+
+
+class EGLCurrent:
+    """Save and restore whichever EGL context is current (e.g. another library's), around our own GL work.
+
+    moderngl's ``with ctx`` makes `ctx` current but on exit leaves *no* EGL context current instead of the previous
+    one, which breaks code that relies on its own standalone context staying current.
+    """
+
+    _lib = None
+
+    def __init__(self) -> None:
+        lib = self._load()
+        self.saved = None
+        if lib is not None and lib.eglGetCurrentContext():
+            self.saved = (lib.eglGetCurrentDisplay(), lib.eglGetCurrentSurface(0x3059),  # EGL_DRAW
+                          lib.eglGetCurrentSurface(0x305A), lib.eglGetCurrentContext())  # EGL_READ
+
+    def restore(self) -> None:
+        if self.saved is not None:
+            self._lib.eglMakeCurrent(*self.saved)
+
+    @classmethod
+    def _load(cls):
+        if cls._lib is None:
+            try:
+                lib = ctypes.CDLL("libEGL.so.1")
+            except OSError:
+                cls._lib = False
+                return None
+            for name in ("eglGetCurrentContext", "eglGetCurrentDisplay", "eglGetCurrentSurface"):
+                getattr(lib, name).restype = ctypes.c_void_p
+            lib.eglGetCurrentSurface.argtypes = [ctypes.c_int]
+            lib.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+            lib.eglMakeCurrent.restype = ctypes.c_uint
+            cls._lib = lib
+        return cls._lib or None
+
+
+def with_context(method):
+    """Run a method with the renderer's context current, then give the previous EGL context back.
+
+    Several standalone contexts may live in one process and moderngl sends calls to whichever is current, not to
+    the object's own; so GL work is bracketed by ``with ctx`` (once: nesting a moderngl context is not supported).
+    """
+
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        if getattr(self, "_gl_depth", 0):
+            return method(self, *args, **kwargs)
+        previous = EGLCurrent()
+        self._gl_depth = 1
+        try:
+            with self.ctx:
+                return method(self, *args, **kwargs)
+        finally:
+            self._gl_depth = 0
+            previous.restore()
+
+    return wrapper

@@ -144,6 +144,20 @@ def test_render_is_antialiased_and_transparent(renderer):
     assert edge.sum() > 0.5 * np.sqrt((a == 255).sum())  # smooth edges: partial coverage along the outline
 
 
+def test_mesh_renderer_and_viewer_share_a_process(renderer):
+    """Each renderer makes its own context current for its GL work: interleaving them changes nothing."""
+    from splat4d.samples import build_model
+    from splat4d.viewer.renderer import render_image
+
+    cam = Camera.from_opengl(_gl_pose(), 48, 48, fov_x_deg=45.0)
+    mesh = get_sample("spinner").mesh(0.3)
+    first = next(renderer.render(mesh, [cam]))
+    splat = render_image(build_model("spinner", num_gaussians=500), cam, 0.3)
+    again = next(renderer.render(mesh, [cam]))
+    np.testing.assert_array_equal(first, again)
+    assert splat[..., 3].max() > 0
+
+
 def test_render_straight_alpha_of_a_fully_lit_quad(renderer):
     """A quad facing the light (and the camera) is lit to exactly its albedo; with straight alpha its
     partially covered edge pixels keep that colour instead of fading to black."""

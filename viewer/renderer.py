@@ -22,8 +22,6 @@ changes. The order is recomputed whenever the camera, t or the splat scale chang
 
 from __future__ import annotations
 
-import ctypes
-import functools
 import time
 from dataclasses import dataclass
 
@@ -32,7 +30,7 @@ import numpy as np
 from splat4d.cameras import Camera
 from splat4d.constants import TILE_SIZE, TRANSMITTANCE_THRESHOLD
 from splat4d.errors import GLError
-from splat4d.gl import create_headless_context, load_program
+from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
 from . import splats as splatlib
 from .sorting import SortKey, SortResult, depth_order
@@ -138,64 +136,6 @@ class _Targets:
             obj.release()
 
 
-class _EGLCurrent:
-    """Save and restore whichever EGL context is current (e.g. another library's), around our own GL work.
-
-    moderngl's ``with ctx`` makes `ctx` current but on exit leaves *no* EGL context current instead of the previous
-    one, which breaks code that relies on its own standalone context staying current.
-    """
-
-    _lib = None
-
-    def __init__(self) -> None:
-        lib = self._load()
-        self.saved = None
-        if lib is not None and lib.eglGetCurrentContext():
-            self.saved = (lib.eglGetCurrentDisplay(), lib.eglGetCurrentSurface(0x3059),  # EGL_DRAW
-                          lib.eglGetCurrentSurface(0x305A), lib.eglGetCurrentContext())  # EGL_READ
-
-    def restore(self) -> None:
-        if self.saved is not None:
-            self._lib.eglMakeCurrent(*self.saved)
-
-    @classmethod
-    def _load(cls):
-        if cls._lib is None:
-            try:
-                lib = ctypes.CDLL("libEGL.so.1")
-            except OSError:
-                cls._lib = False
-                return None
-            for name in ("eglGetCurrentContext", "eglGetCurrentDisplay", "eglGetCurrentSurface"):
-                getattr(lib, name).restype = ctypes.c_void_p
-            lib.eglGetCurrentSurface.argtypes = [ctypes.c_int]
-            lib.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
-            lib.eglMakeCurrent.restype = ctypes.c_uint
-            cls._lib = lib
-        return cls._lib or None
-
-
-def _gl(method):
-    """Run a method with the renderer's context current, then give the previous EGL context back.
-
-    Several standalone contexts may live in one process and moderngl sends calls to whichever is current, not to
-    the object's own; so GL work is bracketed by ``with ctx`` (once: nesting a moderngl context is not supported).
-    """
-
-    @functools.wraps(method)
-    def wrapper(self, *args, **kwargs):
-        if self._gl_depth:
-            return method(self, *args, **kwargs)
-        previous = _EGLCurrent()
-        self._gl_depth += 1
-        try:
-            with self.ctx:
-                return method(self, *args, **kwargs)
-        finally:
-            self._gl_depth -= 1
-            previous.restore()
-
-    return wrapper
 
 
 class SplatRenderer:
@@ -226,7 +166,7 @@ class SplatRenderer:
         if model is not None:
             self.set_model(model)
 
-    @_gl
+    @with_context
     def _init_programs(self) -> None:
         ctx = self.ctx
         self._draw_prog = load_program(ctx, "splat_draw")
@@ -245,7 +185,7 @@ class SplatRenderer:
     def per_frame_upload(self) -> bool:
         return splatlib.needs_per_frame_upload(self._model)
 
-    @_gl
+    @with_context
     def set_model(self, model, t: float | None = None) -> None:
         """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`)."""
         arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
@@ -312,7 +252,7 @@ class SplatRenderer:
                 varyings=["o_geom", "o_axes", "o_color", "o_rect"], varyings_capture_mode="interleaved")
         return self._pre_progs[key]
 
-    @_gl
+    @with_context
     def splats_at(self, t: float) -> splatlib.SplatArrays:
         """The GPU arrays valid at time `t` (re-slices and re-uploads a keyframed model when t changed)."""
         if self.splats is None:
@@ -350,7 +290,7 @@ class SplatRenderer:
         return self._targets
 
     # --- drawing ----------------------------------------------------------------------------------------------
-    @_gl
+    @with_context
     def render(self, camera: Camera, t: float, settings: RenderSettings | None = None,
                order: SortResult | None = None, target=None, viewport=None, sync: bool = True) -> FrameStats:
         """Draw the model seen by `camera` at time `t`.
@@ -507,12 +447,12 @@ class SplatRenderer:
         self._resolve_vao.render(self.ctx.TRIANGLES, vertices=3)
 
     # --- read-back --------------------------------------------------------------------------------------------
-    @_gl
+    @with_context
     def read_display(self) -> np.ndarray:
         """The last resolved offscreen image, ``[H, W, 4]`` float32 RGBA (premultiplied), top row first."""
         return self._read(self._targets.display_tex)
 
-    @_gl
+    @with_context
     def read_accumulation(self) -> np.ndarray:
         """The raw accumulation ``[H, W, 4]``: rgb = sum c a T (or expected depth in depth mode), alpha = 1 - T."""
         return self._read(self._targets.accum_tex)
@@ -524,7 +464,7 @@ class SplatRenderer:
         data = np.frombuffer(tex.read(), np.float32).reshape(h, w, 4)
         return np.ascontiguousarray(data[::-1])
 
-    @_gl
+    @with_context
     def release(self) -> None:
         self._release_model()
         if self._targets is not None:
@@ -597,7 +537,7 @@ _HEADLESS: dict[str, object] = {}
 def headless_context():
     """The viewer's process-wide EGL context (created on first use, leaving whatever context was current so)."""
     if "ctx" not in _HEADLESS:
-        previous = _EGLCurrent()
+        previous = EGLCurrent()
         _HEADLESS["ctx"] = create_headless_context(330)
         previous.restore()
     return _HEADLESS["ctx"]

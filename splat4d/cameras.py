@@ -47,7 +47,7 @@ def fov_from_focal(focal: float, size: int) -> float:
     return 2.0 * math.atan(0.5 * size / focal)
 
 
-def _as_up(up: str | Sequence[float]) -> np.ndarray:
+def as_up(up: str | Sequence[float]) -> np.ndarray:
     if isinstance(up, str):
         if up not in UP_AXES:
             raise CameraError(f"unknown up axis {up!r}; expected one of {', '.join(UP_AXES)}")
@@ -198,7 +198,7 @@ def look_at_c2w(eye: Sequence[float], target: Sequence[float], up: str | Sequenc
     on screen (image -y)."""
     eye = np.asarray(eye, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
-    up_v = _as_up(up)
+    up_v = as_up(up)
     fwd = target - eye
     if not np.isfinite(fwd).all() or np.linalg.norm(fwd) < 1e-12:
         raise CameraError("look-at needs distinct, finite eye and target points")
@@ -249,3 +249,31 @@ def orbit(elevation_deg: float, azimuth_deg: float, radius: float, fov_deg: floa
         raise CameraError(f"orbit radius must be positive, got {radius}")
     eye = orbit_position(elevation_deg, azimuth_deg, radius, up, target)
     return look_at(eye, target, up, fov_deg, width, height)
+
+
+def nerf_frame_camera(frame: dict, meta: dict, width: int, height: int) -> Camera:
+    """Camera of one frame of a NeRF / D-NeRF / Blender ``transforms_*.json``.
+
+    ``transform_matrix`` is an OpenGL camera-to-world; intrinsics are ``fl_x, fl_y, cx, cy`` (per frame, else top
+    level; ``fl_y`` defaults to ``fl_x``, the principal point to the image centre) and otherwise
+    ``camera_angle_x`` (horizontal FOV in radians, square pixels). Raises CameraError naming what is missing.
+    """
+    try:
+        c2w = np.asarray(frame["transform_matrix"], dtype=np.float64)[:4]
+    except KeyError:
+        raise CameraError("no transform_matrix") from None
+    except (TypeError, ValueError) as exc:
+        raise CameraError(f"transform_matrix is not a 4x4 matrix ({exc})") from None
+    get = lambda key, default=None: frame.get(key, meta.get(key, default))  # noqa: E731
+    try:
+        fx = get("fl_x")
+        if fx is None:
+            angle = get("camera_angle_x")
+            if angle is None:
+                raise CameraError("no intrinsics (camera_angle_x or fl_x)")
+            fx = focal_from_fov(float(angle), width)
+        fx = float(fx)
+        return Camera(opengl_to_opencv(c2w), fx, float(get("fl_y", fx)), float(get("cx", width / 2.0)),
+                      float(get("cy", height / 2.0)), width, height)
+    except (TypeError, ValueError) as exc:
+        raise CameraError(f"invalid intrinsics ({exc})") from None

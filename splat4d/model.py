@@ -11,7 +11,7 @@ coefficients per channel and M = K * (sh_degree_t + 1) coefficients of a 4D colo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Union
 
 import torch
@@ -177,17 +177,17 @@ class Gaussians4D:
         """``[N, 4, 4]`` full covariance in (x, y, z, t)."""
         return covariance_4d(self.scales, self.t_scales, self.quats_l, self.quats_r, self.rotation_convention)
 
-    def slice(self, t: float, sh_time_terms: bool = True) -> Gaussians3D:
+    def slice(self, t: float, sh_degree_t: int | None = None) -> Gaussians3D:
         """The conditional 3D Gaussians at time `t` (differentiable).
 
         Means move linearly, covariances are the (time-constant) conditional ones, opacities are multiplied by
         the unnormalised temporal marginal, and `visible` is False where that marginal is <= 0.05.
-        `sh_time_terms=False` drops the cosine time terms of the colour.
+        `sh_degree_t` uses fewer cosine time terms of the colour than the model has (0: none).
         """
         cov3, velocity, var_t = condition_on_time(self.covariance_4d())
         dt = t - self.t_means
         marginal = temporal_marginal(t, self.t_means, var_t)
-        degree_t = self.sh_degree_t if sh_time_terms else 0
+        degree_t = self.sh_degree_t if sh_degree_t is None else max(0, min(sh_degree_t, self.sh_degree_t))
         coeffs = self.sh_coeffs[:, : sh.num_sh_coeffs(self.sh_degree, degree_t)]
         return Gaussians3D(
             means=self.means + velocity * dt[:, None],

@@ -40,7 +40,7 @@ import numpy as np
 import torch
 
 from splat4d import quaternion
-from splat4d.cameras import Camera, _as_up, focal_from_fov, look_at_c2w, opengl_to_opencv
+from splat4d.cameras import Camera, as_up, look_at_c2w, nerf_frame_camera
 from splat4d.errors import CameraError
 from splat4d.fileio import atomic_write_bytes
 
@@ -170,7 +170,7 @@ class CameraPath:
         times = np.array([k.time for k in self.keys], np.float64)
         if np.any(np.diff(times) <= 0):
             raise CameraError("camera path keyframe times must be strictly increasing")
-        _as_up(self.up)
+        as_up(self.up)
         self._times = times
 
     # --- timing ---------------------------------------------------------------------------------------------
@@ -282,7 +282,7 @@ class CameraPath:
             raise CameraError(f"{source}: 'keyframes' must be a non-empty list")
         up = data.get("up", "z")
         try:
-            _as_up(up)
+            as_up(up)
         except CameraError as exc:
             raise CameraError(f"{source}: {exc}") from None
         up = up if isinstance(up, str) else tuple(float(x) for x in up)
@@ -367,15 +367,7 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
             try:
                 if size is None or "w" in fr:
                     size = _image_size(f.parent, fr, meta) or (800, 800)
-                w, h = size
-                c2w = np.asarray(fr["transform_matrix"], np.float64)[:4]
-                fx = fr.get("fl_x", meta.get("fl_x"))
-                if fx is None:
-                    fx = focal_from_fov(float(fr.get("camera_angle_x", meta["camera_angle_x"])), w)
-                fy = fr.get("fl_y", meta.get("fl_y", fx))
-                cx = fr.get("cx", meta.get("cx", w / 2.0))
-                cy = fr.get("cy", meta.get("cy", h / 2.0))
-                cam = Camera(opengl_to_opencv(c2w), fx, fy, cx, cy, w, h)
+                cam = nerf_frame_camera(fr, meta, *size)
             except (KeyError, TypeError, ValueError, CameraError) as exc:
                 raise CameraError(f"{f}: frame {i} has no usable camera ({exc})") from None
             time = fr.get("time", i / max(len(frames) - 1, 1))

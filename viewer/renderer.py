@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import TILE_SIZE, TRANSMITTANCE_THRESHOLD
+from splat4d.constants import TILE_SIZE
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -334,7 +334,7 @@ class SplatRenderer:
         marked in the depth buffer, so later fragments there are rejected before shading, and their tiles are
         read back, so later Gaussians whose screen box lies entirely in saturated tiles are not drawn at all.
         Neither changes the image: such Gaussians could only add to pixels that no longer change."""
-        ctx, tg = self.ctx, self._targets
+        ctx = self.ctx
         front_to_back = settings.composite == "front-to-back"
         indices = order.order[::-1] if front_to_back else order.order
         boxes = order.boxes[::-1] if front_to_back else order.boxes

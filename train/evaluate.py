@@ -1,0 +1,53 @@
+"""Render a model at a dataset's views and score it (PSNR, SSIM; LPIPS when its weights are available)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from splat4d.model import Model
+
+from .data import View
+from .losses import psnr, ssim
+from .rasterize import rasterize
+
+LPIPS_NOTE = ("LPIPS not computed: it needs pretrained network weights, which splat4d does not download and "
+              "which are not available locally")
+
+
+def view_target(view: View, background, device="cpu") -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(RGB ``[H,W,3]`` composited on `background`, alpha ``[H,W]`` or None) as float32 tensors in [0, 1]."""
+    rgb = torch.from_numpy(view.image).to(device=device, dtype=torch.float32) / 255.0
+    if view.alpha is None:
+        return rgb, None
+    a = torch.from_numpy(view.alpha).to(device=device, dtype=torch.float32) / 255.0
+    bg = torch.as_tensor(background, dtype=torch.float32, device=device)
+    return rgb * a[..., None] + bg * (1 - a[..., None]), a
+
+
+def render_view(model: Model, view: View, background, device="cpu") -> torch.Tensor:
+    """``[H, W, 3]`` image of `model` at the view's camera and time."""
+    with torch.no_grad():
+        return rasterize(model.slice(view.time), view.camera, background).rgb
+
+
+def evaluate(model: Model, views: list[View], background, device="cpu", progress: bool = False) -> dict:
+    """Per-view and mean PSNR / SSIM of `model` rendered at `views` (top-level keys `psnr`, `ssim`, `lpips`,
+    `per_view`, `seconds`)."""
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    per_view = []
+    for v in tqdm(views, desc="eval", unit="view", disable=not progress, leave=False):
+        target, _ = view_target(v, background, device)
+        img = render_view(model, v, background, device).clamp(0, 1)
+        per_view.append({"name": v.name, "view": v.view_id, "frame": v.frame_id, "time": v.time,
+                         "psnr": psnr(img, target), "ssim": float(ssim(img, target))})
+    return {
+        "psnr": float(np.mean([p["psnr"] for p in per_view])) if per_view else None,
+        "ssim": float(np.mean([p["ssim"] for p in per_view])) if per_view else None,
+        "lpips": None, "lpips_note": LPIPS_NOTE, "num_views": len(per_view), "per_view": per_view,
+        "seconds": time.perf_counter() - start,
+    }

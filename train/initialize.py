@@ -1,0 +1,158 @@
+"""Initial Gaussians for training: a random ball (Efficient4D) or coloured points on a user mesh (4DGen)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from splat4d import sh
+from splat4d.errors import Splat4DError
+
+from .data import Dataset
+
+
+def look_at_centre(ds: Dataset) -> np.ndarray:
+    """The point closest (least squares) to every training camera's optical axis: where the cameras look."""
+    a = np.zeros((3, 3))
+    b = np.zeros(3)
+    for v in {v.view_id: v for v in ds.train}.values():
+        d = v.camera.forward
+        p = np.eye(3) - np.outer(d, d)
+        a += p
+        b += p @ v.camera.position
+    try:
+        c = np.linalg.solve(a, b)
+    except np.linalg.LinAlgError:  # all axes parallel: fall back to the cameras' centroid
+        c = np.mean([v.camera.position for v in ds.train], 0)
+    return c
+
+
+def default_init_radius(ds: Dataset, centre: np.ndarray) -> float:
+    """80% of the smallest half-width of the views at the look-at centre: a ball every camera sees whole."""
+    r = []
+    for v in {v.view_id: v for v in ds.train}.values():
+        dist = float(np.linalg.norm(v.camera.position - centre))
+        half = min(math.tan(v.camera.fov_x / 2), math.tan(v.camera.fov_y / 2))
+        r.append(dist * half)
+    return 0.8 * min(r)
+
+
+def random_ball(n: int, radius: float, centre: np.ndarray, generator: torch.Generator) -> torch.Tensor:
+    """``[n, 3]`` points uniform in a ball (direction uniform on the sphere, radius r * cbrt(U))."""
+    d = torch.randn(n, 3, generator=generator, dtype=torch.float64)
+    d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+    r = radius * torch.rand(n, generator=generator, dtype=torch.float64) ** (1 / 3)
+    return (d * r[:, None] + torch.from_numpy(centre)).float()
+
+
+def mesh_points(path: str, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``[n, 3]`` points and ``[n, 3]`` RGB colours sampled on a mesh's surface (vertex/texture colours when it
+    has them, else grey)."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # trimesh raises many kinds for unreadable files
+        raise Splat4DError(f"{path}: cannot read mesh ({str(exc).strip() or type(exc).__name__})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise Splat4DError(f"{path}: no triangles in this mesh")
+    try:
+        pts, _, colors = trimesh.sample.sample_surface(mesh, n, sample_color=True, seed=seed)
+        rgb = np.asarray(colors, dtype=np.float64)[:, :3] / 255.0
+    except (AttributeError, ValueError, IndexError, TypeError):  # no colour information
+        pts, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+        rgb = np.full((n, 3), 0.5)
+    return torch.from_numpy(np.asarray(pts)).float(), torch.from_numpy(rgb).float()
+
+
+def nearest_neighbour_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> torch.Tensor:
+    """``[N]`` mean squared distance to the k nearest other points (chunked exact search)."""
+    out = []
+    for i in range(0, points.shape[0], chunk):
+        d = torch.cdist(points[i:i + chunk], points)  # [c, N]
+        vals = torch.topk(d, min(k + 1, points.shape[0]), largest=False).values[:, 1:]
+        out.append((vals ** 2).mean(-1))
+    return torch.cat(out)
+
+
+def initial_parameters(points: torch.Tensor, rgb: torch.Tensor, time_range: tuple[float, float],
+                       sh_degree: int, sh_degree_t: int, generator: torch.Generator,
+                       t_scale: float | None = None, t_means: torch.Tensor | None = None
+                       ) -> dict[str, torch.Tensor]:
+    """Raw Gaussians4D tensors at the official init (notes 4dgs-core §3.5): identity rotations, opacity 0.1,
+    isotropic scale sqrt(mean sq. distance to 3 neighbours), mu_t ~ U[t0 - 0.1 D, t1 + 0.1 D], sigma_t = sqrt(D/5)
+    (or `t_scale`; `t_means` when the points come with times), colour as the SH DC coefficient."""
+    n = points.shape[0]
+    t0, t1 = time_range
+    dur = t1 - t0
+    ident = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(n, 4).clone()
+    m = sh.num_sh_coeffs(sh_degree, sh_degree_t)
+    return {
+        "means": points.clone(),
+        "t_means": (torch.rand(n, generator=generator) * 1.2 - 0.1) * dur + t0 if t_means is None else t_means,
+        "log_scales": torch.log(nearest_neighbour_sq_dist(points).clamp_min(1e-7).sqrt())[:, None].repeat(1, 3),
+        "log_t_scales": torch.full((n,), math.log(t_scale or math.sqrt(dur / 5))),
+        "quats_l": ident, "quats_r": ident.clone(),
+        "opacity_logits": torch.full((n,), math.log(0.1 / 0.9)),
+        "sh_dc": sh.rgb_to_sh(rgb)[:, None, :].float(),
+        "sh_rest": torch.zeros(n, m - 1, 3),
+    }
+
+
+def carve(points: torch.Tensor, times: torch.Tensor, ds: Dataset, min_agreement: float = 0.9) -> torch.Tensor:
+    """``[M]`` bool: which space-time candidates (points ``[M,3]`` at times ``[M]``) lie inside the object's visual
+    hull: at the training frame nearest to each candidate's time, its projection must fall on the foreground
+    (alpha >= 0.5, masks dilated by 2 px) in at least `min_agreement` of the views that see it."""
+    import cv2
+
+    frame_times = np.asarray(ds.frame_times)
+    nearest = np.abs(times.numpy()[:, None] - frame_times[None, :]).argmin(1)
+    pts = points.double().numpy()
+    votes = np.zeros(len(pts))
+    seen = np.zeros(len(pts))
+    kernel = np.ones((5, 5), np.uint8)
+    for v in ds.train:
+        if v.alpha is None:
+            continue
+        fi = int(np.abs(frame_times - v.time).argmin())
+        sel = np.nonzero(nearest == fi)[0]
+        if sel.size == 0:
+            continue
+        uv, z = v.camera.project(pts[sel])
+        w, h = v.size
+        ij = np.floor(uv).astype(np.int64)
+        inside = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        mask = cv2.dilate((v.alpha >= 128).astype(np.uint8), kernel) > 0
+        fg = np.zeros(sel.size, bool)
+        fg[inside] = mask[ij[inside, 1], ij[inside, 0]]
+        seen[sel[inside]] += 1
+        votes[sel] += fg
+    return torch.from_numpy((seen > 0) & (votes >= min_agreement * np.maximum(seen, 1)))
+
+
+def carved_init(n: int, radius: float, centre: np.ndarray, ds: Dataset, generator: torch.Generator,
+                max_rounds: int = 20) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """``n`` points and their times inside the visual hull (see `carve`), drawn from the init ball and the time
+    range; None when the dataset has no masks or the hull is empty (the caller falls back to the plain ball)."""
+    if all(v.alpha is None for v in ds.train):
+        return None
+    t0, t1 = ds.frame_times[0], ds.frame_times[-1]
+    kept_p, kept_t, total = [], [], 0
+    for _ in range(max_rounds):
+        cand = random_ball(4 * n, radius, centre, generator)
+        times = t0 + (t1 - t0) * torch.rand(4 * n, generator=generator, dtype=torch.float64)
+        ok = carve(cand, times, ds)
+        kept_p.append(cand[ok])
+        kept_t.append(times[ok].float())
+        total += int(ok.sum())
+        if total >= n:
+            break
+    if total == 0:
+        return None
+    p, t = torch.cat(kept_p), torch.cat(kept_t)
+    if total < n:  # a thin hull: reuse candidates (their scales come out small, which suits thin shapes)
+        idx = torch.randint(total, (n,), generator=generator)
+        return p[idx], t[idx]
+    return p[:n], t[:n]

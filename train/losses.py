@@ -1,0 +1,86 @@
+"""Image losses and metrics: L1, SSIM (separable Gaussian window), PSNR, confidence-weighted variants.
+
+SSIM uses the reference constants (11x11 Gaussian window, sigma 1.5, C1 = 0.01^2, C2 = 0.03^2, data range 1) as
+the official 4DGS and Efficient4D code, but filters with two 1-D passes (rows then columns): the same result as
+the 2-D window at ~1/5 of the cost, which matters on a CPU where SSIM costs as much as the rasterizer.
+Images are ``[..., H, W, C]`` float tensors in [0, 1] (channels last, like the rasterizer's output).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_C1 = 0.01 ** 2
+SSIM_C2 = 0.03 ** 2
+
+
+def gaussian_kernel_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float32) -> Tensor:
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
+    g = torch.exp(-x * x / (2 * sigma * sigma))
+    return (g / g.sum()).to(dtype)
+
+
+def _to_nchw(img: Tensor) -> Tensor:
+    """``[..., H, W, C]`` -> ``[B, C, H, W]``."""
+    h, w, c = img.shape[-3:]
+    return img.reshape(-1, h, w, c).permute(0, 3, 1, 2)
+
+
+def _blur(x: Tensor, kernel: Tensor) -> Tensor:
+    """Separable Gaussian filter with zero padding ("same" size, as the reference conv2d with padding=5)."""
+    c = x.shape[1]
+    k = kernel.to(x)
+    pad = k.numel() // 2
+    x = F.conv2d(x, k.view(1, 1, 1, -1).expand(c, 1, 1, -1), padding=(0, pad), groups=c)
+    return F.conv2d(x, k.view(1, 1, -1, 1).expand(c, 1, -1, 1), padding=(pad, 0), groups=c)
+
+
+def ssim_map(a: Tensor, b: Tensor) -> Tensor:
+    """Per-pixel SSIM ``[..., H, W, C]`` of two images ``[..., H, W, C]``."""
+    x, y = _to_nchw(a), _to_nchw(b)
+    k = gaussian_kernel_1d(dtype=x.dtype)
+    # one conv call for all five moments
+    stats = _blur(torch.cat([x, y, x * x, y * y, x * y], 1), k)
+    mx, my, sxx, syy, sxy = stats.chunk(5, 1)
+    mx2, my2, mxy = mx * mx, my * my, mx * my
+    num = (2 * mxy + SSIM_C1) * (2 * (sxy - mxy) + SSIM_C2)
+    den = (mx2 + my2 + SSIM_C1) * ((sxx - mx2) + (syy - my2) + SSIM_C2)
+    out = (num / den).permute(0, 2, 3, 1)
+    return out.reshape(a.shape)
+
+
+def ssim(a: Tensor, b: Tensor) -> Tensor:
+    """Mean SSIM (scalar)."""
+    return ssim_map(a, b).mean()
+
+
+def l1(a: Tensor, b: Tensor, weight: Tensor | None = None) -> Tensor:
+    """Mean absolute error, optionally weighted per pixel by ``weight`` ``[..., H, W]`` or ``[..., H, W, C]``."""
+    d = (a - b).abs()
+    if weight is None:
+        return d.mean()
+    if weight.dim() == d.dim() - 1:
+        weight = weight[..., None]
+    return (d * weight).mean()
+
+
+def dssim(a: Tensor, b: Tensor, weight: Tensor | None = None) -> Tensor:
+    """1 - SSIM, optionally weighted per pixel (Efficient4D's confidence-weighted SSIM term)."""
+    m = 1.0 - ssim_map(a, b)
+    if weight is None:
+        return m.mean()
+    if weight.dim() == m.dim() - 1:
+        weight = weight[..., None]
+    return (m * weight).mean()
+
+
+def psnr(a: Tensor, b: Tensor) -> float:
+    """PSNR in dB over all pixels and channels (images in [0, 1])."""
+    mse = float(((a.detach().clamp(0, 1) - b.detach()) ** 2).mean())
+    return 10.0 * math.log10(1.0 / mse) if mse > 0 else float("inf")

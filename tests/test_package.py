@@ -15,9 +15,15 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_non_editable_install_layout(tmp_path):
     """`pip install .` (into a target folder) yields splat4d.{train,viewer,export,samples,shaders} and GLSL data,
     and no bare top-level `train`/`export` modules."""
+    import shutil
+
+    # build from a clean copy of the tracked sources: a stale build/ folder must not leak old files in
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", "build", "*.egg-info", ".git", "out",
+                                                             "__pycache__", ".pytest_cache"))
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--no-build-isolation", "--quiet",
-                    "--target", str(target), str(ROOT)], check=True, capture_output=True)
+                    "--target", str(target), str(src)], check=True, capture_output=True)
     top = sorted(p.name for p in target.iterdir() if not p.name.endswith((".dist-info", ".egg-info")))
     assert "splat4d" in top and not {"train", "export", "viewer", "samples", "shaders"} & set(top), top
     for sub in ("train", "viewer", "export", "samples", "shaders", "cli"):

@@ -67,14 +67,20 @@ def mesh_points(path: str, n: int, seed: int) -> tuple[torch.Tensor, torch.Tenso
     return torch.from_numpy(np.asarray(pts)).float(), torch.from_numpy(rgb).float()
 
 
-def nearest_neighbour_sq_dist(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> torch.Tensor:
-    """``[N]`` mean squared distance to the k nearest other points (chunked exact search)."""
-    out = []
+def knn(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor]:
+    """(indices ``[N, k]``, distances ``[N, k]``) of each point's k nearest other points (chunked exact search)."""
+    idx, dist = [], []
     for i in range(0, points.shape[0], chunk):
         d = torch.cdist(points[i:i + chunk], points)  # [c, N]
-        vals = torch.topk(d, min(k + 1, points.shape[0]), largest=False).values[:, 1:]
-        out.append((vals ** 2).mean(-1))
-    return torch.cat(out)
+        v, j = torch.topk(d, min(k + 1, points.shape[0]), largest=False)
+        idx.append(j[:, 1:])
+        dist.append(v[:, 1:])
+    return torch.cat(idx), torch.cat(dist)
+
+
+def nearest_neighbour_sq_dist(points: torch.Tensor, k: int = 3) -> torch.Tensor:
+    """``[N]`` mean squared distance to the k nearest other points."""
+    return (knn(points, k)[1] ** 2).mean(-1)
 
 
 def initial_parameters(points: torch.Tensor, rgb: torch.Tensor, time_range: tuple[float, float],

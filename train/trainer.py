@@ -26,7 +26,7 @@ from .config import TrainConfig
 from .confidence import confidence_maps
 from .data import Dataset, View, downscale_view
 from .evaluate import evaluate, view_target
-from .initialize import (carved_init, default_init_radius, initial_parameters, look_at_centre, mesh_points,
+from .initialize import (carved_init, default_init_radius, knn, initial_parameters, look_at_centre, mesh_points,
                          random_ball)
 from .losses import dssim, l1, psnr
 from .rasterize import rasterize
@@ -60,17 +60,6 @@ def active_sh(step: int, cfg: TrainConfig) -> tuple[int, int]:
         return cfg.sh_degree, cfg.sh_degree_t
     k = step // cfg.sh_increase_every
     return min(k, cfg.sh_degree), min(max(0, k - cfg.sh_degree), cfg.sh_degree_t)
-
-
-def knn_indices(points: torch.Tensor, k: int = 8, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor]:
-    """(indices ``[N, k]``, distances ``[N, k]``) of each point's k nearest other points."""
-    idx, dist = [], []
-    for i in range(0, points.shape[0], chunk):
-        d = torch.cdist(points[i:i + chunk], points)
-        v, j = torch.topk(d, min(k + 1, points.shape[0]), largest=False)
-        idx.append(j[:, 1:])
-        dist.append(v[:, 1:])
-    return torch.cat(idx), torch.cat(dist)
 
 
 def smoothness_loss(velocities: torch.Tensor, nbr: torch.Tensor, nbr_dist: torch.Tensor) -> torch.Tensor:
@@ -243,7 +232,7 @@ class Trainer:
                 loss = loss + cfg.lambda_mask * l1(out.alpha, mask)
             if cfg.smooth_weight and not static:
                 if self._nbr is None or self.step % 100 == 0:
-                    self._nbr = knn_indices(self.params["means"].detach())
+                    self._nbr = knn(self.params["means"].detach(), k=8)
                 loss = loss + cfg.smooth_weight * smoothness_loss(g.velocities, *self._nbr)
             (loss / cfg.batch_size).backward()
             if cfg.densify.enabled and out.means2d.grad is not None:

@@ -17,6 +17,18 @@ from typing import Iterator
 from .errors import OutputExistsError
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it; put it straight back
+    os.umask(mask)
+    return mask
+
+
+#: Temporary files and folders (mkstemp: 0600, mkdtemp: 0700) get the modes a plain open()/mkdir() would give, so
+#: outputs are as readable as the user's other files once renamed into place.
+_FILE_MODE = 0o666 & ~_umask()
+_DIR_MODE = 0o777 & ~_umask()
+
+
 def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
     """Return `path` as a Path after checking that writing it would not clobber anything without `force`."""
     path = Path(path)
@@ -38,6 +50,7 @@ def atomic_path(path: str | os.PathLike, force: bool = False, suffix: str | None
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp.", suffix=path.suffix if suffix is None else suffix,
                                dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, _FILE_MODE)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
@@ -68,6 +81,7 @@ def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     path = check_writable(path, force)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    os.chmod(tmp, _DIR_MODE)
     try:
         yield tmp
         if path.exists():

@@ -47,6 +47,20 @@ def test_existing_output_is_not_clobbered(tmp_path):
     assert len(load_checkpoint(path).model) == 3
 
 
+def test_atomic_outputs_get_the_usual_permissions(tmp_path):
+    """Temp files are created private (0600 / 0700); once renamed into place an output must be as readable as a
+    plainly written file, or the user's other tools and users cannot open it."""
+    from splat4d.fileio import atomic_dir
+
+    umask = os.umask(0o022)
+    os.umask(umask)
+    path = save_checkpoint(tmp_path / "m.safetensors", random_model(3, "current"))
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+    with atomic_dir(tmp_path / "folder") as d:
+        (d / "a.txt").write_text("a")
+    assert (tmp_path / "folder").stat().st_mode & 0o777 == 0o777 & ~umask
+
+
 def write_raw(path, tensors, meta):
     save_file(tensors, str(path), metadata={"splat4d": json.dumps(meta)})
 

@@ -2,9 +2,9 @@
 
     python bench/viewer.py [--json OUT.json] [--cases sample,200k,1m] [--sizes 512x512,1280x720] [--frames N]
 
-Cases: the bundled sample (``build_model("spinner")``, 20,000 Gaussians) and synthetic native 4D models of 200k and
-1M Gaussians (SH degree 3, moving and fading; points in a ball of radius 0.5, std-devs 0.01 x e^(+-0.5), camera at
-distance 1.5 with a 60 degree field of view). Every measured frame has a new camera (2 degrees further round) and
+Cases: the bundled sample (``splat4d.samples.trained_checkpoint("spinner")``, 50,000 trained Gaussians) and
+synthetic native 4D models of 200k and 1M Gaussians (SH degree 3, moving and fading; points in a ball of radius
+0.5, std-devs 0.01 x e^(+-0.5), camera at distance 1.5 with a 60 degree field of view). Every measured frame has a new camera (2 degrees further round) and
 a new model time, so each one re-sorts, as a playing, orbiting viewer does.
 
 Per case the JSON holds ``n``, ``size``, ``frame_ms`` (median wall time of one frame: sort + pre-pass + draw +
@@ -33,10 +33,11 @@ def synthetic(n: int):
 def build_case(name: str):
     """(model, orbit distance, fov, up) for a case name."""
     if name == "sample":
-        from splat4d.samples import build_model
+        from splat4d.checkpoint import load_checkpoint
+        from splat4d.samples import trained_checkpoint
         from splat4d.viewer.trajectory import frame_model
 
-        model = build_model("spinner")
+        model = load_checkpoint(trained_checkpoint("spinner")).model
         framing = frame_model(model)
         return model, framing.center, framing.distance(40.0), 40.0
     n = {"200k": 200_000, "1m": 1_000_000}[name]

@@ -9,6 +9,7 @@ scene time t in [0, 1], inside a ball of radius 0.9 (Blender world, +z up):
 >>> lo, hi = object_bounds("wave", 0.25)                     # (3,), (3,)
 >>> write_dataset("morph", "data/morph")                     # 16 views x 16 frames at 256 px + 16 test images
 >>> model = build_model("spinner", num_gaussians=20000)      # Gaussians4D following the known motion
+>>> path = trained_checkpoint("spinner")                      # bundled checkpoint trained on the spinner dataset
 """
 
 from .dataset import DatasetConfig, View, test_views, train_times, train_views, transforms_json, write_dataset
@@ -17,8 +18,9 @@ from .geometry import Mesh
 from .objects import (BOUNDING_RADIUS, OBJECTS, SAMPLES, SampleConfigError, SampleObject, UnknownSampleError,
                       get_sample, mesh_at, object_bounds, object_center)
 from .render import MeshRenderer, shade
+from .trained import TRAINED, trained_checkpoint
 
 __all__ = ["BOUNDING_RADIUS", "DatasetConfig", "Mesh", "MeshRenderer", "OBJECTS", "SAMPLES", "SampleConfigError",
-           "SampleObject", "UnknownSampleError", "View", "build_model", "get_sample", "mesh_at", "object_bounds",
-           "object_center", "shade", "test_views", "train_times", "train_views", "transforms_json",
-           "write_dataset"]
+           "SampleObject", "TRAINED", "UnknownSampleError", "View", "build_model", "get_sample", "mesh_at",
+           "object_bounds", "object_center", "shade", "test_views", "train_times", "train_views",
+           "trained_checkpoint", "transforms_json", "write_dataset"]

@@ -34,10 +34,13 @@ def test_non_editable_install_layout(tmp_path):
     shaders = {p.name for p in (target / "splat4d" / "shaders").glob("*.glsl")}
     assert shaders == {p.name for p in (ROOT / "shaders").glob("*.glsl")}
     code = ("import splat4d, splat4d.train, splat4d.viewer, splat4d.export; "
-            "from splat4d.gl import shader_source; print(splat4d.__file__)")
+            "from splat4d.gl import shader_source; from splat4d.samples import trained_checkpoint; "
+            "print(splat4d.__file__); print(trained_checkpoint())")
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env={"PYTHONPATH": str(target)},
-                         capture_output=True, text=True, check=True).stdout
-    assert str(target) in out
+                         capture_output=True, text=True, check=True).stdout.splitlines()
+    assert str(target) in out[0]
+    bundled = Path(out[1])  # the trained sample is package data
+    assert bundled.is_relative_to(target) and bundled.read_bytes() == (ROOT / "samples" / bundled.name).read_bytes()
 
 
 @pytest.mark.parametrize("name", list(subcommands()))

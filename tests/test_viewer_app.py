@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from splat4d.cameras import Camera, orbit
-from splat4d.checkpoint import save_checkpoint
+from splat4d.checkpoint import load_checkpoint, save_checkpoint
+from splat4d.samples import trained_checkpoint
 from splat4d.viewer.camera_path import CameraKey, CameraPath
 from splat4d.viewer.renderer import RenderSettings, render_image
 from splat4d.viewer.synthetic import synthetic_model
@@ -99,14 +100,16 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
     assert psnr(img, headless_of(report, model)) >= 40.0
 
 
-def test_app_paused_depth_view_and_no_display(display, files, tmp_path):
-    root, model, ckpt = files
+def test_app_opens_the_bundled_sample_paused_in_depth_view_and_needs_a_display(display, files, tmp_path):
+    root, _, ckpt = files
+    model = load_checkpoint(trained_checkpoint("spinner")).model
     shot, report_path = tmp_path / "depth.png", tmp_path / "report.json"
-    proc = run_view(display, str(ckpt), "--size", "120x90", "--exit-after", "3", "--paused", "--time", "0.25",
+    proc = run_view(display, "--size", "120x90", "--exit-after", "3", "--paused", "--time", "0.25",
                     "--mode", "depth", "--screenshot", str(shot), "--report", str(report_path))
     assert proc.returncode == 0, proc.stderr
     report = json.loads(report_path.read_text())
     assert report["time_start"] == report["time_end"] == 0.25
+    assert read_shot(shot).std() > 0.05  # the spinner is in view
     assert psnr(read_shot(shot), headless_of(report, model)) >= 40.0
     # an existing screenshot is not overwritten, and no display is a one-line error
     again = run_view(display, str(ckpt), "--exit-after", "1", "--screenshot", str(shot))

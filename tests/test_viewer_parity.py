@@ -13,7 +13,7 @@ import torch
 from splat4d.cameras import Camera, look_at_c2w, orbit
 from splat4d.checkpoint import load_checkpoint, save_checkpoint
 from splat4d.model import KeyframedGaussians
-from splat4d.samples import build_model
+from splat4d.samples import trained_checkpoint
 from splat4d.train.rasterize import rasterize
 from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
 from splat4d.viewer.synthetic import synthetic_model
@@ -55,7 +55,7 @@ def test_gl_matches_rasterizer_for_a_checkpoint(tmp_path, convention, degree, de
 
 
 def test_gl_matches_rasterizer_for_the_bundled_sample():
-    model = build_model("spinner", num_gaussians=8000)
+    model = load_checkpoint(trained_checkpoint("spinner")).model  # 50k trained Gaussians
     for t, az in ((0.3, 40.0), (0.85, 200.0)):
         camera = orbit(25, az, 2.6, fov_deg=40, width=128, height=128)
         for composite in ("front-to-back", "back-to-front"):

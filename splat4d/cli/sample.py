@@ -11,13 +11,15 @@ Render a procedural animated test object (see --list) from an orbit of cameras t
 the D-NeRF layout: OUT/transforms_{train,test,val}.json, OUT/train/r_000.png ..., OUT/test/..., OUT/sample.json.
 Training images are an image matrix of --views azimuths x --frames times (ordered by time, then view); test images
 use other azimuths and elevations at times between the training frames. --model also writes a native 4D Gaussian
-checkpoint built from the object's known motion (no training).
+checkpoint built from the object's known motion (no training); --trained copies the bundled checkpoint that
+`splat4d train` fitted to the sample's default dataset (samples marked 'trained' in --list).
 
 examples:
   splat4d sample --list
   splat4d sample spinner data/spinner
   splat4d sample wave data/wave --views 8 --frames 24 --size 512
   splat4d sample morph --model morph.safetensors
+  splat4d sample spinner --trained spinner.safetensors
 """
 
 
@@ -39,6 +41,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     m = p.add_argument_group("model")
     m.add_argument("--model", metavar="MODEL.safetensors",
                    help="also write a 4D Gaussian checkpoint built from the object's motion")
+    m.add_argument("--trained", metavar="CKPT.safetensors",
+                   help="also copy the bundled trained checkpoint of the sample here")
     m.add_argument("--gaussians", type=int, default=20000, help="Gaussians in the model (default 20000)")
     m.add_argument("--seed", type=int, default=0, help="surface sampling seed of the model (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -49,22 +53,23 @@ def run(args: argparse.Namespace) -> int:
 
     from ..errors import Splat4DError
     from ..fileio import check_writable
-    from ..samples import SAMPLES, DatasetConfig, build_model, get_sample, write_dataset
+    from ..samples import SAMPLES, TRAINED, DatasetConfig, build_model, get_sample, trained_checkpoint, write_dataset
 
     if args.list:
         width = max(len(n) for n in SAMPLES)
         for name, description in SAMPLES.items():
-            print(f"{name:<{width}}  {description}")
+            print(f"{name:<{width}}  {description}{'  (trained checkpoint bundled)' if name in TRAINED else ''}")
         return 0
     if not args.name:
-        raise Splat4DError(f"give a sample NAME ({', '.join(SAMPLES)}) and an OUT folder and/or --model")
+        raise Splat4DError(f"give a sample NAME ({', '.join(SAMPLES)}) and an OUT folder, --model and/or --trained")
     get_sample(args.name)  # unknown name: one line listing the names
-    if not args.out and not args.model:
-        raise Splat4DError("nothing to write: give an OUT folder and/or --model MODEL.safetensors")
+    if not args.out and not args.model and not args.trained:
+        raise Splat4DError("nothing to write: give an OUT folder, --model MODEL.safetensors and/or --trained CKPT")
+    bundled = trained_checkpoint(args.name) if args.trained else None  # not bundled: fail before any work
     config = DatasetConfig(views=args.views, frames=args.frames, size=args.size, elevation=args.elevation,
                            radius=args.radius, fov=DatasetConfig.fov if args.fov is None else args.fov,
                            test_views=args.test_views)
-    for path in (args.out, args.model):  # fail before any work, not after
+    for path in (args.out, args.model, args.trained):  # fail before any work, not after
         if path:
             check_writable(path, args.force)
 
@@ -76,6 +81,11 @@ def run(args: argparse.Namespace) -> int:
                                                        "frames": args.frames, "seed": args.seed},
                         force=args.force)
         print(f"wrote {args.model}: {len(model):,} Gaussians from sample {args.name!r}")
+    if bundled is not None:
+        from ..fileio import atomic_write_bytes
+
+        atomic_write_bytes(args.trained, bundled.read_bytes(), force=args.force)
+        print(f"wrote {args.trained}: the bundled checkpoint trained on sample {args.name!r}")
     if args.out:
         start = time.perf_counter()
         write_dataset(args.name, args.out, config, force=args.force, progress=True)

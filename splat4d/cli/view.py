@@ -12,7 +12,10 @@ mouse: left drag orbit (look in fly mode), right/middle drag pan, wheel zoom
 keys:  W/A/S/D/Q/E fly (Shift: faster), Space play/pause, R reset view, F fly mode, P screenshot, Esc quit
 Drop a model file on the window to open it. Needs a display (run under Xvfb on a server).
 
+With no CKPT it opens the bundled trained 'spinner' sample.
+
 examples:
+  splat4d view
   splat4d view model.safetensors
   splat4d view model.safetensors --cameras data/spinner --background white
   splat4d view model.safetensors --path tour.json --paused --time 0.25
@@ -22,7 +25,8 @@ examples:
 def add_args(p: argparse.ArgumentParser) -> None:
     from splat4d.viewer.options import argtype, parse_size
 
-    p.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any importable format)")
+    p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
+                   help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
                    help="window size (default 1280x720)")
     p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
@@ -78,6 +82,10 @@ def run(args: argparse.Namespace) -> int:
         CameraPath.load(args.path)
     if args.cameras:
         dataset_views(args.cameras, args.split)
+    if args.checkpoint is None:
+        from splat4d.samples.trained import trained_checkpoint
+
+        args.checkpoint = str(trained_checkpoint("spinner"))
     ckpt = load_model(args.checkpoint)
     report = run_app(ckpt, options)
     if args.exit_after is not None:

@@ -12,6 +12,7 @@ import torch
 
 from splat4d.cameras import Camera, look_at_c2w, orbit
 from splat4d.checkpoint import load_checkpoint, save_checkpoint
+from splat4d.errors import GLError
 from splat4d.model import KeyframedGaussians
 from splat4d.samples import trained_checkpoint
 from splat4d.train.rasterize import rasterize
@@ -26,11 +27,11 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 100.0 if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
-def compare(model, camera, t, background=(0.1, 0.2, 0.3), composite="front-to-back"):
+def compare(model, camera, t, background=(0.1, 0.2, 0.3), composite="front-to-back", primitive="auto"):
     """(PSNR of rgb, max alpha error) between the GL renderer and the trainer's rasterizer."""
     r = SplatRenderer(headless_context(), model)
     try:
-        r.render(camera, t, RenderSettings(background=background, composite=composite))
+        r.render(camera, t, RenderSettings(background=background, composite=composite, primitive=primitive))
         gl = r.read_display()[..., :3]
         gl_alpha = r.read_accumulation()[..., 3]
     finally:
@@ -58,9 +59,11 @@ def test_gl_matches_rasterizer_for_the_bundled_sample():
     model = load_checkpoint(trained_checkpoint("spinner")).model  # 50k trained Gaussians
     for t, az in ((0.3, 40.0), (0.85, 200.0)):
         camera = orbit(25, az, 2.6, fov_deg=40, width=128, height=128)
-        for composite in ("front-to-back", "back-to-front"):
-            value, _ = compare(model, camera, t, background=(1.0, 1.0, 1.0), composite=composite)
-            assert value >= MIN_PSNR, (t, composite, value)
+        for composite, primitive in (("front-to-back", "auto"), ("back-to-front", "points"),
+                                     ("front-to-back", "quads")):
+            value, _ = compare(model, camera, t, background=(1.0, 1.0, 1.0), composite=composite,
+                               primitive=primitive)
+            assert value >= MIN_PSNR, (t, composite, primitive, value)
 
 
 def test_gl_matches_rasterizer_for_a_keyframed_model():
@@ -76,3 +79,32 @@ def test_gl_matches_rasterizer_for_a_keyframed_model():
     for t in (0.2, 0.7):
         value, _ = compare(model, camera, t)
         assert value >= MIN_PSNR, (t, value)
+
+
+def test_point_and_quad_splats_agree_at_the_image_edges_and_large_splats_fall_back_to_quads():
+    """Points are clipped by their centre and limited in size: splats centred off-screen must still reach in, and
+    splats larger than the largest point must come out right with "auto" (drawn as quads)."""
+    model = synthetic_model(1500, seed=12, radius=0.5, scale=0.03, speed=0.2, sh_degree=0)
+    # the cloud's centre sits near the image's top-left corner: many centres are outside the image
+    edge = Camera(look_at_c2w((1.6, 0.4, 0.5), (0.0, 0.0, 0.0), "z"), 110.0, 110.0, 6.0, 4.0, 120, 90)
+    images = {}
+    for primitive in ("points", "quads"):
+        value, _ = compare(model, edge, 0.4, primitive=primitive)
+        assert value >= MIN_PSNR, (primitive, value)
+        r = SplatRenderer(headless_context(), model)
+        r.render(edge, 0.4, RenderSettings(primitive=primitive, transparent=True))
+        images[primitive] = r.read_display()
+        r.release()
+    assert images["points"][..., 3].max() > 0.5
+    np.testing.assert_allclose(images["points"], images["quads"], atol=2e-3)
+
+    big = synthetic_model(40, seed=13, radius=0.1, scale=0.25, speed=0.0, sh_degree=0)
+    close = orbit(20, 30, 1.0, fov_deg=60, width=160, height=160)
+    value, _ = compare(big, close, 0.5, primitive="auto")
+    assert value >= MIN_PSNR
+    r = SplatRenderer(headless_context(), big)
+    try:
+        with pytest.raises(GLError, match="do not fit"):
+            r.render(close, 0.5, RenderSettings(primitive="points"))
+    finally:
+        r.release()

@@ -7,7 +7,9 @@ Per frame, three GL passes:
    order at t (`splat4d.viewer.sorting`), and transform feedback writes their 2D footprints in that order. Doing
    this once per Gaussian instead of once per quad corner is what makes a software rasterizer (Mesa llvmpipe)
    usable.
-2. **draw** (``splat_draw.glsl``): one instanced quad per footprint, premultiplied alpha into a float32 target
+2. **draw** (``splat_draw.glsl``): one splat per footprint (a GL point sprite over its bounding box, or an
+   instanced quad along its axes for the outline/centre modes and for Gaussians larger than the biggest point),
+   premultiplied alpha into a float32 target
    cleared to 0, so colour = sum c a T and alpha = 1 - T exactly as the reference rasterizer composites.
    Either back to front (ONE, ONE_MINUS_SRC_ALPHA), or (default) front to back (ONE_MINUS_DST_ALPHA, ONE) in
    stages: between stages, pixels whose transmittance reached TRANSMITTANCE_THRESHOLD (where the reference stops)
@@ -22,6 +24,7 @@ changes. The order is recomputed whenever the camera, t or the splat scale chang
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -53,6 +56,14 @@ _MIN_STAGE = 2048
 _MIN_STAGED = 16384
 #: Tile edge (pixels) of the saturation read-back used to skip hidden Gaussians.
 _OCCLUSION_TILE = 4
+#: Splat primitives: "points" (one GL point per Gaussian, fastest on llvmpipe), "quads" (one instanced quad), or
+#: "auto" (points where they can be drawn, see `SplatRenderer._use_points`).
+PRIMITIVES: tuple[str, ...] = ("auto", "points", "quads")
+#: What a quad costs more than a point, in shaded pixels (llvmpipe, 2 cores: ~1.2 us vs ~0.3 us per splat set-up,
+#: ~3.4 ns per pixel); `SplatRenderer._use_points` weighs it against the points' extra pixels.
+_QUAD_EXTRA_COST = 260.0
+#: Modes drawn with points when the primitive allows; outlines and centres need the quad's own footprint.
+_POINT_MODES = ("color", "depth", "alpha")
 
 
 def parse_mode(name: str) -> str:
@@ -77,6 +88,7 @@ class RenderSettings:
         composite: "front-to-back" (under-blending in batches, pixels stop once their transmittance reaches
             TRANSMITTANCE_THRESHOLD, like the reference rasterizer) or "back-to-front" (over-blending, no early
             stop). Same image either way (to float rounding and the 1e-4 early-stop residue).
+        primitive: one of `PRIMITIVES`; the same image either way, "auto" is the fast choice.
     """
 
     mode: str = "color"
@@ -86,9 +98,12 @@ class RenderSettings:
     transparent: bool = False
     depth_range: tuple[float, float] | None = None
     composite: str = "front-to-back"
+    primitive: str = "auto"
 
     def __post_init__(self) -> None:
         self.mode = parse_mode(self.mode)
+        if self.primitive not in PRIMITIVES:
+            raise GLError(f"unknown splat primitive {self.primitive!r}; expected one of {', '.join(PRIMITIVES)}")
         if self.composite not in COMPOSITE_ORDERS:
             raise GLError(f"unknown composite order {self.composite!r}; expected one of {', '.join(COMPOSITE_ORDERS)}")
         bg = tuple(float(x) for x in self.background)
@@ -170,6 +185,13 @@ class SplatRenderer:
     def _init_programs(self) -> None:
         ctx = self.ctx
         self._draw_prog = load_program(ctx, "splat_draw")
+        self._points_prog = load_program(ctx, "splat_draw", {"SPLAT_POINTS": 1})
+        # Points are clipped by their centre: draw them through a viewport reaching `_point_margin` pixels past
+        # every edge of the image, so that a point reaching into the image always has its centre inside.
+        largest = float((ctx.info.get("GL_POINT_SIZE_RANGE") or (1.0, 1.0))[1])
+        self._max_point = min(largest, 1024.0)
+        self._point_margin = int(math.ceil(self._max_point / 2)) + 1
+        self._max_viewport = min(int(v) for v in (ctx.info.get("GL_MAX_VIEWPORT_DIMS") or (16384, 16384)))
         self._resolve_prog, self._mask_prog, self._tiles_prog = (
             load_program(ctx, "splat_screen", {"SCREEN_PASS": k, "OCCLUSION_TILE": _OCCLUSION_TILE}) for k in range(3))
         self._resolve_vao = ctx.vertex_array(self._resolve_prog, [])
@@ -226,6 +248,9 @@ class SplatRenderer:
             used = [name for name in _SPLAT_FIELDS if name in self._draw_prog]
             fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS) + "/i"
             self._draw_vao = ctx.vertex_array(self._draw_prog, [(self._splat_buf, fmt, *used)])
+            used = [name for name in _SPLAT_FIELDS if name in self._points_prog]
+            fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS)
+            self._points_vao = ctx.vertex_array(self._points_prog, [(self._splat_buf, fmt, *used)])
             prog = self._pre_program(arrays.sh_degree, arrays.sh_degree_t, texels, width)
             self._pre_vao = ctx.vertex_array(
                 prog, [(self._attr_buf, "4f 4f 4f 4f", "a_mean_t", "a_motion", "a_cov_a", "a_cov_b")],
@@ -236,7 +261,7 @@ class SplatRenderer:
         self.splats = arrays
 
     def _release_model(self) -> None:
-        for name in ("_pre_vao", "_draw_vao", "_attr_buf", "_sh_tex", "_ibo", "_splat_buf"):
+        for name in ("_pre_vao", "_draw_vao", "_points_vao", "_attr_buf", "_sh_tex", "_ibo", "_splat_buf"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.release()
@@ -339,8 +364,10 @@ class SplatRenderer:
         indices = order.order[::-1] if front_to_back else order.order
         boxes = order.boxes[::-1] if front_to_back else order.boxes
         self._set_pre_uniforms(camera, t, settings, splats)
-        _set_uniforms(self._draw_prog, u_size=(camera.width, camera.height), u_height=camera.height,
-                      u_mode=RENDER_MODES.index(settings.mode))
+        for prog in (self._draw_prog, self._points_prog):
+            _set_uniforms(prog, u_size=(camera.width, camera.height), u_height=camera.height,
+                          u_mode=RENDER_MODES.index(settings.mode), u_margin=self._point_margin,
+                          u_max_point=self._max_point)
         _set_uniforms(self._mask_prog, u_accum=0)
         _set_uniforms(self._tiles_prog, u_accum=0)
         stages = _stages(len(indices)) if front_to_back and settings.mode not in ("outlines", "centers") \
@@ -354,13 +381,14 @@ class SplatRenderer:
             if saturated is not None:
                 keep = ~_hidden(stage_boxes, saturated, camera.height)
                 idx, stage_boxes = idx[keep], stage_boxes[keep]
-            self._draw_stage(np.ascontiguousarray(idx, dtype=np.uint32), front_to_back, len(stages) > 1)
+            self._draw_stage(np.ascontiguousarray(idx, dtype=np.uint32), front_to_back, len(stages) > 1,
+                             self._use_points(settings, camera, stage_boxes))
             drawn += len(idx)
             if k + 1 < len(stages):
                 if len(idx):
-                    u, v, r = stage_boxes[:, 0], stage_boxes[:, 1], stage_boxes[:, 2]
-                    covered = np.minimum(covered, [(u - r).min(), (v - r).min(), np.inf, np.inf])
-                    covered = np.maximum(covered, [-np.inf, -np.inf, (u + r).max(), (v + r).max()])
+                    u, v, hx, hy = stage_boxes[:, 0], stage_boxes[:, 1], stage_boxes[:, 2], stage_boxes[:, 3]
+                    covered = np.minimum(covered, [(u - hx).min(), (v - hy).min(), np.inf, np.inf])
+                    covered = np.maximum(covered, [-np.inf, -np.inf, (u + hx).max(), (v + hy).max()])
                 saturated = self._mark_saturated(covered)
         ctx.disable(ctx.DEPTH_TEST)
         return drawn
@@ -395,8 +423,31 @@ class SplatRenderer:
         flags = np.frombuffer(tg.tiles_fbo.read(components=1, dtype="f1"), np.uint8).reshape(th, tw)
         return _saturated_table(flags[::-1] > 127)
 
-    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool) -> None:
-        """Pre-process the Gaussians `idx` (in draw order) and draw them as instanced quads."""
+    def _use_points(self, settings: RenderSettings, camera: Camera, boxes: np.ndarray) -> bool:
+        """Draw these Gaussians (screen boxes `boxes`, see `SortResult`) as points rather than quads?
+
+        "auto" picks the cheaper by a cost model measured on llvmpipe, in pixel-equivalents: a point shades its
+        whole bounding square but costs little to set up; a quad shades only its oriented rectangle but costs
+        `_QUAD_EXTRA_COST` pixels more (two triangles, four vertices). Points win for small or round splats,
+        quads for large elongated ones.
+        """
+        if settings.primitive == "quads" or settings.mode not in _POINT_MODES:
+            return False
+        if not boxes.shape[0]:
+            return True
+        side = 2.0 * np.maximum(boxes[:, 2], boxes[:, 3]) - 1.0  # the point size splat_draw.glsl asks for
+        fits = float(side.max()) <= self._max_point and \
+            max(self._targets.size) + 2 * self._point_margin <= self._max_viewport
+        if settings.primitive == "points":
+            if not fits:
+                raise GLError(f"splats up to {float(side.max()):.0f} px wide do not fit this context's points (at "
+                              f"most {self._max_point:.0f} px); use the 'auto' or 'quads' primitive")
+            return True
+        extra_fragments = float(np.sum(side * side, dtype=np.float64) - np.sum(boxes[:, 4], dtype=np.float64))
+        return fits and extra_fragments < _QUAD_EXTRA_COST * boxes.shape[0]
+
+    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool, points: bool) -> None:
+        """Pre-process the Gaussians `idx` (in draw order) and draw them as points or instanced quads."""
         if not idx.shape[0]:
             return
         ctx, tg = self.ctx, self._targets
@@ -409,8 +460,17 @@ class SplatRenderer:
         ctx.blend_func = ((ctx.ONE_MINUS_DST_ALPHA, ctx.ONE) if front_to_back
                           else (ctx.ONE, ctx.ONE_MINUS_SRC_ALPHA))
         tg.accum_fbo.depth_mask = False
-        self._bind_splats(0)
-        self._draw_vao.render(ctx.TRIANGLE_STRIP, vertices=4, instances=idx.shape[0])
+        if points:
+            w, h = tg.size
+            m = self._point_margin
+            ctx.viewport = (-m, -m, w + 2 * m, h + 2 * m)  # see splat_draw.glsl: points clip by their centre
+            ctx.enable(ctx.PROGRAM_POINT_SIZE)
+            self._points_vao.render(ctx.POINTS, vertices=idx.shape[0])
+            ctx.disable(ctx.PROGRAM_POINT_SIZE)
+            ctx.viewport = (0, 0, w, h)
+        else:
+            self._bind_splats(0)
+            self._draw_vao.render(ctx.TRIANGLE_STRIP, vertices=4, instances=idx.shape[0])
         tg.accum_fbo.depth_mask = True
 
     def _bind_splats(self, first: int) -> None:
@@ -498,15 +558,15 @@ def _saturated_table(saturated: np.ndarray) -> np.ndarray:
 
 
 def _hidden(boxes: np.ndarray, table: np.ndarray, height: int) -> np.ndarray:
-    """``[M]`` bool: the screen box (u, v, r) of each Gaussian lies entirely in saturated tiles (`table`, from
-    `_saturated_table` for an image `height` pixels high)."""
+    """``[M]`` bool: the screen box (u, v, hx, hy, ...) of each Gaussian lies entirely in saturated tiles (`table`,
+    from `_saturated_table` for an image `height` pixels high)."""
     th, tw = table.shape[0] - 1, table.shape[1] - 1
     pad = th * _OCCLUSION_TILE - height  # tiles start at the bottom edge: shift y (top-down) by the overhang
-    u, v, r = boxes[:, 0], boxes[:, 1] + pad, boxes[:, 2]
-    x0 = np.clip(np.floor((u - r) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64)
-    x1 = np.clip(np.floor((u + r) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64) + 1
-    y0 = np.clip(np.floor((v - r) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64)
-    y1 = np.clip(np.floor((v + r) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64) + 1
+    u, v, hx, hy = boxes[:, 0], boxes[:, 1] + pad, boxes[:, 2], boxes[:, 3]
+    x0 = np.clip(np.floor((u - hx) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64)
+    x1 = np.clip(np.floor((u + hx) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64) + 1
+    y0 = np.clip(np.floor((v - hy) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64)
+    y1 = np.clip(np.floor((v + hy) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64) + 1
     count = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
     return count == (x1 - x0) * (y1 - y0)
 

@@ -4,9 +4,9 @@ The depth of Gaussian i at time t is the camera-space z of its conditional mean 
 point the vertex shader projects. A Gaussian is dropped from the order (not drawn at all) when it cannot cover a
 pixel at this (camera, t): its temporal marginal is <= TEMPORAL_CULL, its opacity times that marginal is below
 ALPHA_THRESHOLD, its mean is at or in front of the NEAR_PLANE, or a conservative bound of its footprint misses the
-image. Survivors are argsorted by decreasing depth. Each also gets a conservative screen box (from the largest
-eigenvalues of its covariance and of the Jacobian, and its opacity at t) that the renderer uses to skip Gaussians
-hidden behind pixels that are already opaque.
+image. Survivors are argsorted by decreasing depth. Each also gets its screen box (from its projected 2D covariance,
+computed as splat_preprocess.glsl and the trainer's rasterizer do, and its opacity at t), which the renderer uses to
+skip Gaussians hidden behind pixels that are already opaque and to choose between point and quad splats.
 
 `depth_order` is a fused numba kernel plus numpy's argsort; both release the GIL, so the desktop app sorts in a
 worker thread (a parallel kernel was at most 1.3x faster on 2 cores: not worth competing with the rasterizer
@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TEMPORAL_CULL
+from splat4d.constants import ALPHA_THRESHOLD, EPS2D, FRUSTUM_CLAMP, NEAR_PLANE, TEMPORAL_CULL
 
 from .splats import SplatArrays
 
@@ -54,8 +54,9 @@ class SortResult:
 
     Attributes:
         order: ``[V]`` uint32 indices of the V drawable Gaussians, back to front.
-        boxes: ``[V, 3]`` float32 (u, v, r) per entry of `order`: the square [u - r, u + r] x [v - r, v + r]
-            (pixels) holds every pixel that Gaussian can reach with alpha >= ALPHA_THRESHOLD.
+        boxes: ``[V, 5]`` float32 (u, v, hx, hy, area) per entry of `order`: the box [u - hx, u + hx] x
+            [v - hy, v + hy] (pixels) holds every pixel that Gaussian can reach with alpha >= ALPHA_THRESHOLD, and
+            `area` is that of its quad along the principal axes out to the same cut-off (the renderer's cost model).
         depth_range: (near, far) camera depth of the drawn means (2nd and 98th percentile), for depth display.
         key: the `SortKey` this order belongs to.
         ms: wall time of the sort in milliseconds.
@@ -81,11 +82,18 @@ def _view_params(camera: Camera) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, near, eps2d, out, boxes):
-    """out[i] = -depth of Gaussian i at t (+inf when culled, see module doc); boxes[i] = (u, v, half-extent) of a
-    square in pixels that contains every pixel it can give alpha >= alpha_min."""
+def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, near, eps2d, clamp, out,
+                boxes):
+    """out[i] = -depth of Gaussian i at t (+inf when culled, see module doc); boxes[i] = (u, v, half-width,
+    half-height, quad area): the pixel box holding every pixel it can give alpha >= alpha_min, and the area of the
+    quad along its axes out to that cut-off (what splat_draw.glsl draws)."""
     n = mean_t.shape[0]
     fx, fy, cx, cy = view[12], view[13], view[14], view[15]
+    lim_x0 = cx / fx + (clamp - 1.0) * 0.5 * width / fx
+    lim_x1 = (width - cx) / fx + (clamp - 1.0) * 0.5 * width / fx
+    lim_y0 = cy / fy + (clamp - 1.0) * 0.5 * height / fy
+    lim_y1 = (height - cy) / fy + (clamp - 1.0) * 0.5 * height / fy
+    s2 = scale * scale
     for i in range(n):
         out[i] = np.inf
         dt = t - mean_t[i, 3]
@@ -103,23 +111,42 @@ def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alp
         z = view[8] * px + view[9] * py + view[10] * pz + view[11]
         if not z > near:
             continue
-        xz = x / z
-        yz = y / z
-        # largest eigenvalue of J J^T at the unclamped x/z, y/z: an upper bound for the clamped Jacobian
-        a = fx * fx * (1.0 + xz * xz) / (z * z)
-        c = fy * fy * (1.0 + yz * yz) / (z * z)
-        b = fx * fy * xz * yz / (z * z)
-        lam_j = 0.5 * (a + c) + math.sqrt(0.25 * (a - c) * (a - c) + b * b)
-        s = cov[i, 7] * scale  # largest spatial std-dev
-        ext = math.sqrt(2.0 * math.log(o / alpha_min)) * math.sqrt(lam_j * s * s + eps2d) + 1.0
-        u = fx * xz + cx
-        v = fy * yz + cy
-        if u + ext < 0.0 or u - ext > width or v + ext < 0.0 or v - ext > height:
+        # the EWA projection of the trainer's rasterizer (and splat_preprocess.glsl): rows of J R, J at the
+        # clamped x/z, y/z; Sigma_2D = (J R) Sigma (J R)^T + eps2d
+        iz = 1.0 / z
+        tx = min(max(x * iz, -lim_x0), lim_x1)
+        ty = min(max(y * iz, -lim_y0), lim_y1)
+        r0 = fx * iz * view[0] - fx * tx * iz * view[8]
+        r1 = fx * iz * view[1] - fx * tx * iz * view[9]
+        r2 = fx * iz * view[2] - fx * tx * iz * view[10]
+        q0 = fy * iz * view[4] - fy * ty * iz * view[8]
+        q1 = fy * iz * view[5] - fy * ty * iz * view[9]
+        q2 = fy * iz * view[6] - fy * ty * iz * view[10]
+        c00, c01, c02 = cov[i, 0] * s2, cov[i, 1] * s2, cov[i, 2] * s2
+        c11, c12, c22 = cov[i, 3] * s2, cov[i, 4] * s2, cov[i, 5] * s2
+        m0 = c00 * r0 + c01 * r1 + c02 * r2
+        m1 = c01 * r0 + c11 * r1 + c12 * r2
+        m2 = c02 * r0 + c12 * r1 + c22 * r2
+        a = r0 * m0 + r1 * m1 + r2 * m2 + eps2d
+        b = q0 * m0 + q1 * m1 + q2 * m2
+        c = q0 * (c00 * q0 + c01 * q1 + c02 * q2) + q1 * (c01 * q0 + c11 * q1 + c12 * q2) \
+            + q2 * (c02 * q0 + c12 * q1 + c22 * q2) + eps2d
+        det = a * c - b * b
+        if not det > 0.0:
+            continue
+        rr = 2.0 * math.log(o / alpha_min)  # squared cut-off radius in std-devs
+        hx = math.sqrt(rr * a) + 1.0  # + 1 px: float32 on the GPU, pixel-centre rounding
+        hy = math.sqrt(rr * c) + 1.0
+        u = fx * x * iz + cx
+        v = fy * y * iz + cy
+        if u + hx < 0.0 or u - hx > width or v + hy < 0.0 or v - hy > height:
             continue
         out[i] = -z
         boxes[i, 0] = u
         boxes[i, 1] = v
-        boxes[i, 2] = ext
+        boxes[i, 2] = hx
+        boxes[i, 3] = hy
+        boxes[i, 4] = 4.0 * rr * math.sqrt(det)
 
 
 def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.0) -> SortResult:
@@ -127,10 +154,11 @@ def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.
     start = time.perf_counter()
     n = len(splats)
     neg = np.empty(n, np.float32)
-    boxes = np.empty((n, 3), np.float32)
+    boxes = np.empty((n, 5), np.float32)
     if n:
         _depth_keys(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
-                    float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, NEAR_PLANE, EPS2D, neg, boxes)
+                    float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, NEAR_PLANE, EPS2D,
+                    FRUSTUM_CLAMP, neg, boxes)
     return _finish(neg, boxes, SortKey.of(camera, t, scale), start)
 
 
@@ -160,21 +188,30 @@ def _depth_order_numpy(splats: SplatArrays, camera: Camera, t: float, scale: flo
     o = splats.cov[:, 6] * np.exp(-e)
     p = m[:, :3] + mo[:, :3] * dt[:, None]
     w2c = camera.w2c
-    pc = p @ w2c[:3, :3].T + w2c[:3, 3]
+    rot = w2c[:3, :3]
+    pc = p @ rot.T + w2c[:3, 3]
     z = pc[:, 2]
-    fx, fy = camera.fx, camera.fy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xz, yz = pc[:, 0] / z, pc[:, 1] / z
-        a, c, b = fx ** 2 * (1 + xz ** 2) / z ** 2, fy ** 2 * (1 + yz ** 2) / z ** 2, fx * fy * xz * yz / z ** 2
-        lam_j = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2)
-        s = splats.cov[:, 7] * scale
-        r = np.sqrt(2.0 * np.log(np.maximum(o, ALPHA_THRESHOLD) / ALPHA_THRESHOLD))
-        ext = r * np.sqrt(lam_j * s * s + EPS2D) + 1.0
-        u, v = fx * xz + camera.cx, fy * yz + camera.cy
-        keep = ((e < _MAX_EXPONENT) & (o >= ALPHA_THRESHOLD) & (z > NEAR_PLANE) & (u + ext >= 0)
-                & (u - ext <= camera.width) & (v + ext >= 0) & (v - ext <= camera.height))
+    fx, fy, w, h = camera.fx, camera.fy, camera.width, camera.height
+    c = splats.cov.astype(np.float64) * scale ** 2
+    cov3 = np.stack([c[:, [0, 1, 2]], c[:, [1, 3, 4]], c[:, [2, 4, 5]]], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        slack_x, slack_y = (FRUSTUM_CLAMP - 1) * 0.5 * w / fx, (FRUSTUM_CLAMP - 1) * 0.5 * h / fy
+        tx = np.clip(pc[:, 0] / z, -(camera.cx / fx + slack_x), (w - camera.cx) / fx + slack_x)
+        ty = np.clip(pc[:, 1] / z, -(camera.cy / fy + slack_y), (h - camera.cy) / fy + slack_y)
+        jac = np.zeros((len(z), 2, 3))
+        jac[:, 0, 0], jac[:, 0, 2] = fx / z, -fx * tx / z
+        jac[:, 1, 1], jac[:, 1, 2] = fy / z, -fy * ty / z
+        jr = jac @ rot
+        cov2 = jr @ cov3 @ jr.transpose(0, 2, 1) + EPS2D * np.eye(2)
+        det = cov2[:, 0, 0] * cov2[:, 1, 1] - cov2[:, 0, 1] ** 2
+        rr = 2.0 * np.log(np.maximum(o, ALPHA_THRESHOLD) / ALPHA_THRESHOLD)
+        hx, hy = np.sqrt(rr * cov2[:, 0, 0]) + 1.0, np.sqrt(rr * cov2[:, 1, 1]) + 1.0
+        u, v = fx * pc[:, 0] / z + camera.cx, fy * pc[:, 1] / z + camera.cy
+        keep = ((e < _MAX_EXPONENT) & (o >= ALPHA_THRESHOLD) & (z > NEAR_PLANE) & (det > 0) & (u + hx >= 0)
+                & (u - hx <= w) & (v + hy >= 0) & (v - hy <= h))
+        area = 4.0 * rr * np.sqrt(det)
     neg = np.where(keep, -z, np.inf).astype(np.float32)
-    return _finish(neg, np.stack([u, v, ext], -1).astype(np.float32), SortKey.of(camera, t, scale), start)
+    return _finish(neg, np.stack([u, v, hx, hy, area], -1).astype(np.float32), SortKey.of(camera, t, scale), start)
 
 
 class AsyncSorter:

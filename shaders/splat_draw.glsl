@@ -117,6 +117,9 @@ void main() {
     vec2 uv = v_uv;
 #endif
     float r2 = dot(uv, uv);
+#ifndef SPLAT_POINTS
+    // (points never draw these modes: llvmpipe runs the branches of uniform ifs as masked code, so leaving them
+    // out of the point program saves their cost on every fragment)
     if (u_mode == MODE_OUTLINES) {
         float r = sqrt(r2);
         float ring = 1.0 - smoothstep(0.0, 1.5 * fwidth(r), abs(r - OUTLINE_SIGMAS));
@@ -129,6 +132,7 @@ void main() {
         f_color = vec4(v_color.rgb * a, a);
         return;
     }
+#endif
     bool inside = all(greaterThanEqual(pixel, v_rect.xy)) && all(lessThan(pixel, v_rect.zw));
     float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
     // below the cut-off the fragment adds exactly nothing (cheaper than discard on software rasterizers)

@@ -1,15 +1,16 @@
 #version 330 core
-// One splat per pre-processed Gaussian (splat_preprocess.glsl output, already in draw order), in one of two
-// primitives (same pixels, same values):
-//   * SPLAT_POINTS defined: one GL point per Gaussian, a square sprite over the bounding box of its footprint
+// One splat per pre-processed Gaussian (splat_preprocess.glsl output, already in draw order). Compiled three
+// ways (one define each); the first two give the same pixels and values:
+//   * SPLAT_POINTS: one GL point per Gaussian, a square sprite over the bounding box of its footprint
 //     ellipse. One vertex and one primitive set-up per Gaussian: on a software rasterizer (Mesa llvmpipe) that
 //     is 1.4-1.6x faster than quads for typical scenes, where the per-primitive cost dominates. A point is
 //     clipped by its centre, so the renderer draws points through a viewport enlarged by u_margin pixels on
 //     every side (at least half the largest point): every point that can reach the image has its centre inside.
 //     Points are limited in size (GL_POINT_SIZE_RANGE), so the renderer falls back to quads for stages holding
 //     larger Gaussians.
-//   * otherwise: one instanced quad spanning the Gaussian's principal axes out to the cut-off radius (also used
-//     for the outline and centre modes).
+//   * SPLAT_QUADS: one instanced quad spanning the Gaussian's principal axes out to the cut-off radius;
+//   * SPLAT_OVERLAY: the same quads for the outline and centre modes (only this variant has their code: llvmpipe
+//     runs the branches of uniform ifs as masked code, at a cost on every fragment).
 // Either way the footprint reaches the radius where alpha falls to ALPHA_THRESHOLD, so every pixel the reference
 // rasterizer would touch is covered. uv is the offset from the centre in std-devs (Mahalanobis coordinates:
 // interpolated across a quad, which is exact for a linear map, or mapped back from the pixel for a point):
@@ -21,7 +22,7 @@
 // that the front-to-back early stop (splat_screen.glsl writes depth 0 over saturated pixels) rejects them there.
 //
 // u_mode: 0 colour, 1 depth (accumulates the expected depth sum z_i a_i T_i), 2 alpha (as colour),
-//         3 ellipse outlines (2 sigma), 4 centres (small discs); the last two are drawn as quads only.
+//         3 ellipse outlines (2 sigma), 4 centres (small discs); the last two in SPLAT_OVERLAY only.
 
 #define MODE_DEPTH 1
 #define MODE_OUTLINES 3
@@ -74,6 +75,7 @@ void main() {
     v_to_uv = inverse(mat2(a1, a2));
 #else
     vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+#ifdef SPLAT_OVERLAY
     if (u_mode == MODE_OUTLINES) {
         // reach the 2 sigma ring plus ~2 px for its anti-aliased edge
         radius = OUTLINE_SIGMAS + 2.0 / max(min(length(a1), length(a2)), 1e-3);
@@ -82,6 +84,7 @@ void main() {
         a2 = vec2(0.0, CENTRE_RADIUS_PX);
         radius = 1.5;
     }
+#endif
     vec2 uv = corner * radius;
     vec2 px = i_geom.xy + a1 * uv.x + a2 * uv.y;
     gl_Position = vec4(2.0 * px.x / u_size.x - 1.0, 1.0 - 2.0 * px.y / u_size.y, 0.0, 1.0);  // depth 0.5
@@ -117,9 +120,7 @@ void main() {
     vec2 uv = v_uv;
 #endif
     float r2 = dot(uv, uv);
-#ifndef SPLAT_POINTS
-    // (points never draw these modes: llvmpipe runs the branches of uniform ifs as masked code, so leaving them
-    // out of the point program saves their cost on every fragment)
+#ifdef SPLAT_OVERLAY
     if (u_mode == MODE_OUTLINES) {
         float r = sqrt(r2);
         float ring = 1.0 - smoothstep(0.0, 1.5 * fwidth(r), abs(r - OUTLINE_SIGMAS));

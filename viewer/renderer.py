@@ -184,8 +184,11 @@ class SplatRenderer:
     @with_context
     def _init_programs(self) -> None:
         ctx = self.ctx
-        self._draw_prog = load_program(ctx, "splat_draw")
-        self._points_prog = load_program(ctx, "splat_draw", {"SPLAT_POINTS": 1})
+        # one splat program per kind: "quads" and "points" draw colour, depth and alpha; "overlay" draws the
+        # outline and centre modes (as quads). Kept apart because llvmpipe runs uniform branches as masked code,
+        # which would cost the overlay modes' shading on every fragment.
+        self._splat_progs = {kind: load_program(ctx, "splat_draw", {f"SPLAT_{kind.upper()}": 1})
+                             for kind in ("quads", "points", "overlay")}
         # Points are clipped by their centre: draw them through a viewport reaching `_point_margin` pixels past
         # every edge of the image, so that a point reaching into the image always has its centre inside.
         largest = float((ctx.info.get("GL_POINT_SIZE_RANGE") or (1.0, 1.0))[1])
@@ -245,12 +248,12 @@ class SplatRenderer:
             self._sh_tex.filter = (0x2600, 0x2600)  # GL_NEAREST: texelFetch only
             self._ibo = ctx.buffer(reserve=4 * cap)
             self._splat_buf = ctx.buffer(reserve=_SPLAT_BYTES * cap)
-            used = [name for name in _SPLAT_FIELDS if name in self._draw_prog]
-            fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS) + "/i"
-            self._draw_vao = ctx.vertex_array(self._draw_prog, [(self._splat_buf, fmt, *used)])
-            used = [name for name in _SPLAT_FIELDS if name in self._points_prog]
-            fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS)
-            self._points_vao = ctx.vertex_array(self._points_prog, [(self._splat_buf, fmt, *used)])
+            self._splat_vaos = {}
+            for kind, prog in self._splat_progs.items():
+                used = [name for name in _SPLAT_FIELDS if name in prog]
+                fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS)
+                fmt += "" if kind == "points" else "/i"  # a quad is one instance of a 4-vertex strip
+                self._splat_vaos[kind] = ctx.vertex_array(prog, [(self._splat_buf, fmt, *used)])
             prog = self._pre_program(arrays.sh_degree, arrays.sh_degree_t, texels, width)
             self._pre_vao = ctx.vertex_array(
                 prog, [(self._attr_buf, "4f 4f 4f 4f", "a_mean_t", "a_motion", "a_cov_a", "a_cov_b")],
@@ -261,7 +264,10 @@ class SplatRenderer:
         self.splats = arrays
 
     def _release_model(self) -> None:
-        for name in ("_pre_vao", "_draw_vao", "_points_vao", "_attr_buf", "_sh_tex", "_ibo", "_splat_buf"):
+        for vao in getattr(self, "_splat_vaos", {}).values():
+            vao.release()
+        self._splat_vaos = {}
+        for name in ("_pre_vao", "_attr_buf", "_sh_tex", "_ibo", "_splat_buf"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.release()
@@ -364,7 +370,7 @@ class SplatRenderer:
         indices = order.order[::-1] if front_to_back else order.order
         boxes = order.boxes[::-1] if front_to_back else order.boxes
         self._set_pre_uniforms(camera, t, settings, splats)
-        for prog in (self._draw_prog, self._points_prog):
+        for prog in self._splat_progs.values():
             _set_uniforms(prog, u_size=(camera.width, camera.height), u_height=camera.height,
                           u_mode=RENDER_MODES.index(settings.mode), u_margin=self._point_margin,
                           u_max_point=self._max_point)
@@ -382,7 +388,7 @@ class SplatRenderer:
                 keep = ~_hidden(stage_boxes, saturated, camera.height)
                 idx, stage_boxes = idx[keep], stage_boxes[keep]
             self._draw_stage(np.ascontiguousarray(idx, dtype=np.uint32), front_to_back, len(stages) > 1,
-                             self._use_points(settings, camera, stage_boxes))
+                             self._use_points(settings, camera, stage_boxes), settings.mode)
             drawn += len(idx)
             if k + 1 < len(stages):
                 if len(idx):
@@ -446,7 +452,7 @@ class SplatRenderer:
         extra_fragments = float(np.sum(side * side, dtype=np.float64) - np.sum(boxes[:, 4], dtype=np.float64))
         return fits and extra_fragments < _QUAD_EXTRA_COST * boxes.shape[0]
 
-    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool, points: bool) -> None:
+    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool, points: bool, mode: str) -> None:
         """Pre-process the Gaussians `idx` (in draw order) and draw them as points or instanced quads."""
         if not idx.shape[0]:
             return
@@ -465,22 +471,13 @@ class SplatRenderer:
             m = self._point_margin
             ctx.viewport = (-m, -m, w + 2 * m, h + 2 * m)  # see splat_draw.glsl: points clip by their centre
             ctx.enable(ctx.PROGRAM_POINT_SIZE)
-            self._points_vao.render(ctx.POINTS, vertices=idx.shape[0])
+            self._splat_vaos["points"].render(ctx.POINTS, vertices=idx.shape[0])
             ctx.disable(ctx.PROGRAM_POINT_SIZE)
             ctx.viewport = (0, 0, w, h)
         else:
-            self._bind_splats(0)
-            self._draw_vao.render(ctx.TRIANGLE_STRIP, vertices=4, instances=idx.shape[0])
+            kind = "quads" if mode in _POINT_MODES else "overlay"
+            self._splat_vaos[kind].render(ctx.TRIANGLE_STRIP, vertices=4, instances=idx.shape[0])
         tg.accum_fbo.depth_mask = True
-
-    def _bind_splats(self, first: int) -> None:
-        """Point the draw VAO's per-instance attributes at splat `first` of the splat buffer."""
-        for k, name in enumerate(_SPLAT_FIELDS):
-            if name not in self._draw_prog:
-                continue
-            self._draw_vao.bind(self._draw_prog[name].location, "f", self._splat_buf, "4f",
-                                offset=first * _SPLAT_BYTES + 16 * k,
-                                stride=_SPLAT_BYTES, divisor=1)
 
     def _set_pre_uniforms(self, camera: Camera, t: float, settings: RenderSettings,
                           splats: splatlib.SplatArrays) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import av
@@ -13,6 +14,7 @@ import pytest
 from splat4d.cameras import orbit
 from splat4d.checkpoint import save_checkpoint
 from splat4d.cli import main
+from splat4d.constants import TRANSMITTANCE_THRESHOLD
 from splat4d.viewer.renderer import RENDER_MODES, RenderSettings, SplatRenderer, headless_context, render_image
 from splat4d.viewer.synthetic import synthetic_model
 
@@ -149,6 +151,41 @@ def test_skipping_hidden_gaussians_keeps_the_image():
     finally:
         r.release()
     assert btf.drawn == btf.visible and ftb.drawn < 0.8 * ftb.visible
+    np.testing.assert_allclose(front, back, atol=2e-4)
+
+
+def test_staging_is_used_only_where_saturation_can_hide_gaussians():
+    from splat4d.viewer.renderer import _DEPTH_TILE, _hideable_fraction
+
+    saturating = -math.log(TRANSMITTANCE_THRESHOLD)
+    tile_area = _DEPTH_TILE * _DEPTH_TILE
+    # 10 Gaussians in one tile with twice the saturating optical depth: about half lie behind the stop
+    boxes = np.zeros((10, 6), np.float32)
+    boxes[:, :2] = 5.0
+    boxes[:, 5] = 2 * saturating * tile_area / 10
+    assert _hideable_fraction(boxes, 64, 64) == pytest.approx(0.5, rel=1e-5)
+    # spread over separate tiles, none saturates
+    boxes[:, 0] = np.arange(10) * _DEPTH_TILE * 0.99
+    boxes[:, 1] = 40.0
+    assert _hideable_fraction(boxes, 200, 64) == 0.0
+    # a faint cloud is drawn in one stage (no read-backs), with the same image as back to front
+    faint = synthetic_model(20000, seed=3, sh_degree=0, radius=0.3, scale=0.01, speed=0.1)
+    faint.opacity_logits.data[:] = -4.0
+    cam = orbit(10, 20, 1.2, fov_deg=40, width=96, height=96)
+    r = SplatRenderer(headless_context(), faint)
+    masks = []
+    mark = r._mark_saturated
+    r._mark_saturated = lambda covered: masks.append(covered) or mark(covered)
+    try:
+        ftb = r.render(cam, 0.5, RenderSettings(transparent=True))
+        front = r.read_display()
+        assert ftb.visible > 16384 and _hideable_fraction(r.sort(cam, 0.5).boxes, 96, 96) < 0.5
+        assert not masks  # one stage: no saturation masks, no read-backs
+        r.render(cam, 0.5, RenderSettings(transparent=True, composite="back-to-front"))
+        back = r.read_display()
+    finally:
+        r.release()
+    assert ftb.drawn == ftb.visible
     np.testing.assert_allclose(front, back, atol=2e-4)
 
 

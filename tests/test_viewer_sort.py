@@ -84,7 +84,7 @@ def test_culling_drops_only_invisible_gaussians():
     for i in range(0, res.visible, max(1, res.visible // 8)):
         alone = render_image(g.select(torch.tensor([int(res.order[i])])), cam, 0.5, RenderSettings(transparent=True))
         ys, xs = np.nonzero(alone[..., 3] > 0)
-        u, v, hx, hy, _ = res.boxes[i]
+        u, v, hx, hy = res.boxes[i, :4]
         assert np.all(np.abs(xs + 0.5 - u) <= hx) and np.all(np.abs(ys + 0.5 - v) <= hy)
         # ... and it is tight: the drawn pixels reach to within ~2 px of it on some side
         assert np.abs(xs + 0.5 - u).max() >= hx - 2.5 or np.abs(ys + 0.5 - v).max() >= hy - 2.5

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import TILE_SIZE
+from splat4d.constants import TILE_SIZE, TRANSMITTANCE_THRESHOLD
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -54,6 +54,12 @@ _SH_TEX_WIDTH = 4096
 _MIN_STAGE = 2048
 #: ... and fewer than this many visible Gaussians are drawn in one stage.
 _MIN_STAGED = 16384
+#: Staging (and its read-backs, which stall the pipeline) only pays when at least this share of the visible
+#: Gaussians is expected to lie behind saturated pixels (`_hideable_fraction`). Measured on llvmpipe: estimates
+#: of 0.32-0.38 drew 10-30% faster in one stage, 0.63 and above 1.5-6x faster staged.
+_MIN_HIDEABLE = 0.5
+#: Tile edge (pixels) over which `_hideable_fraction` sums optical depth.
+_DEPTH_TILE = 16
 #: Tile edge (pixels) of the saturation read-back used to skip hidden Gaussians.
 _OCCLUSION_TILE = 4
 #: Splat primitives: "points" (one GL point per Gaussian, fastest on llvmpipe), "quads" (one instanced quad), or
@@ -376,8 +382,9 @@ class SplatRenderer:
                           u_max_point=self._max_point)
         _set_uniforms(self._mask_prog, u_accum=0)
         _set_uniforms(self._tiles_prog, u_accum=0)
-        stages = _stages(len(indices)) if front_to_back and settings.mode not in ("outlines", "centers") \
-            else [(0, len(indices))]
+        staged = front_to_back and settings.mode in _POINT_MODES and \
+            _hideable_fraction(order.boxes, camera.width, camera.height) >= _MIN_HIDEABLE
+        stages = _stages(len(indices)) if staged else [(0, len(indices))]
         ctx.blend_equation = ctx.FUNC_ADD
         ctx.depth_func = "<"
         saturated, drawn = None, 0
@@ -541,6 +548,27 @@ def _stages(count: int) -> list[tuple[int, int]]:
             out.append((first, end))
             first = end
     return out
+
+
+def _hideable_fraction(boxes: np.ndarray, width: int, height: int) -> float:
+    """Rough share of the Gaussians (screen boxes of a `SortResult`) that lie behind saturated pixels.
+
+    Sums each Gaussian's optical mass (column 5: -ln(1 - alpha) integrated over the image) into the
+    _DEPTH_TILE-pixel tile of its centre. A pixel saturates (the reference rasterizer stops) at optical depth
+    D* = -ln(TRANSMITTANCE_THRESHOLD); in a tile of optical depth D > D*, the share of its Gaussians beyond that
+    point is about 1 - D*/D, if their mass is spread evenly in depth.
+    """
+    if not boxes.shape[0]:
+        return 0.0
+    nx, ny = -(-width // _DEPTH_TILE), -(-height // _DEPTH_TILE)
+    tx = np.clip((boxes[:, 0] // _DEPTH_TILE).astype(np.int64), 0, nx - 1)
+    ty = np.clip((boxes[:, 1] // _DEPTH_TILE).astype(np.int64), 0, ny - 1)
+    tile = ty * nx + tx
+    depth = np.bincount(tile, weights=boxes[:, 5], minlength=nx * ny) / (_DEPTH_TILE * _DEPTH_TILE)
+    count = np.bincount(tile, minlength=nx * ny)
+    saturating = -math.log(TRANSMITTANCE_THRESHOLD)
+    behind = np.clip(1.0 - saturating / np.maximum(depth, 1e-12), 0.0, 1.0)
+    return float(np.dot(count, behind) / boxes.shape[0])
 
 
 def _saturated_table(saturated: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import ALPHA_THRESHOLD, EPS2D, FRUSTUM_CLAMP, NEAR_PLANE, TEMPORAL_CULL
+from splat4d.constants import ALPHA_THRESHOLD, EPS2D, FRUSTUM_CLAMP, MAX_ALPHA, NEAR_PLANE, TEMPORAL_CULL
 
 from .splats import SplatArrays
 
@@ -54,9 +54,10 @@ class SortResult:
 
     Attributes:
         order: ``[V]`` uint32 indices of the V drawable Gaussians, back to front.
-        boxes: ``[V, 5]`` float32 (u, v, hx, hy, area) per entry of `order`: the box [u - hx, u + hx] x
-            [v - hy, v + hy] (pixels) holds every pixel that Gaussian can reach with alpha >= ALPHA_THRESHOLD, and
-            `area` is that of its quad along the principal axes out to the same cut-off (the renderer's cost model).
+        boxes: ``[V, 6]`` float32 (u, v, hx, hy, area, mass) per entry of `order`: the box [u - hx, u + hx] x
+            [v - hy, v + hy] (pixels) holds every pixel that Gaussian can reach with alpha >= ALPHA_THRESHOLD,
+            `area` is that of its quad along the principal axes out to the same cut-off, and `mass` its optical
+            depth -ln(1 - alpha) integrated over the image (pixels); the renderer's cost models use the last two.
         depth_range: (near, far) camera depth of the drawn means (2nd and 98th percentile), for depth display.
         key: the `SortKey` this order belongs to.
         ms: wall time of the sort in milliseconds.
@@ -82,11 +83,26 @@ def _view_params(camera: Camera) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, near, eps2d, clamp, out,
-                boxes):
+def _dilog(x):
+    """Li2(x) = sum_k x^k / k^2 for x in [0, 1) to ~1e-5: the series directly below 1/2, above it through the
+    reflection Li2(x) = pi^2/6 - ln(x) ln(1 - x) - Li2(1 - x), so 16 terms always suffice."""
+    y = x if x <= 0.5 else 1.0 - x
+    s, p = 0.0, 1.0
+    for k in range(1, 17):
+        p *= y
+        s += p / (k * k)
+    if x <= 0.5:
+        return s
+    return math.pi * math.pi / 6.0 - math.log(x) * math.log(y) - s
+
+
+@numba.njit(cache=True, nogil=True)
+def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, max_alpha, near, eps2d,
+                clamp, out, boxes):
     """out[i] = -depth of Gaussian i at t (+inf when culled, see module doc); boxes[i] = (u, v, half-width,
-    half-height, quad area): the pixel box holding every pixel it can give alpha >= alpha_min, and the area of the
-    quad along its axes out to that cut-off (what splat_draw.glsl draws)."""
+    half-height, quad area, optical mass): the pixel box holding every pixel it can give alpha >= alpha_min, the
+    area of the quad along its axes out to that cut-off (what splat_draw.glsl draws), and its optical depth
+    -ln(1 - alpha) integrated over the image plane (pixels)."""
     n = mean_t.shape[0]
     fx, fy, cx, cy = view[12], view[13], view[14], view[15]
     lim_x0 = cx / fx + (clamp - 1.0) * 0.5 * width / fx
@@ -147,6 +163,9 @@ def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alp
         boxes[i, 2] = hx
         boxes[i, 3] = hy
         boxes[i, 4] = 4.0 * rr * math.sqrt(det)
+        # optical depth -ln(1 - alpha) integrated over the plane: 2 pi sqrt(det) Li2(o) (alpha is capped at
+        # max_alpha: so is o here, to stay finite)
+        boxes[i, 5] = 2.0 * math.pi * math.sqrt(det) * _dilog(min(o, max_alpha))
 
 
 def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.0) -> SortResult:
@@ -154,11 +173,11 @@ def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.
     start = time.perf_counter()
     n = len(splats)
     neg = np.empty(n, np.float32)
-    boxes = np.empty((n, 5), np.float32)
+    boxes = np.empty((n, 6), np.float32)
     if n:
         _depth_keys(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
-                    float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, NEAR_PLANE, EPS2D,
-                    FRUSTUM_CLAMP, neg, boxes)
+                    float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE,
+                    EPS2D, FRUSTUM_CLAMP, neg, boxes)
     return _finish(neg, boxes, SortKey.of(camera, t, scale), start)
 
 
@@ -210,8 +229,11 @@ def _depth_order_numpy(splats: SplatArrays, camera: Camera, t: float, scale: flo
         keep = ((e < _MAX_EXPONENT) & (o >= ALPHA_THRESHOLD) & (z > NEAR_PLANE) & (det > 0) & (u + hx >= 0)
                 & (u - hx <= w) & (v + hy >= 0) & (v - hy <= h))
         area = 4.0 * rr * np.sqrt(det)
+        k = np.arange(1, 2001)
+        mass = 2.0 * np.pi * np.sqrt(det) * (np.clip(o, 0, MAX_ALPHA)[:, None] ** k / k ** 2).sum(1)
     neg = np.where(keep, -z, np.inf).astype(np.float32)
-    return _finish(neg, np.stack([u, v, hx, hy, area], -1).astype(np.float32), SortKey.of(camera, t, scale), start)
+    boxes = np.stack([u, v, hx, hy, area, mass], -1).astype(np.float32)
+    return _finish(neg, boxes, SortKey.of(camera, t, scale), start)
 
 
 class AsyncSorter:

@@ -25,10 +25,10 @@ from splat4d.export import ExportError, exporters, frame_times, iter_frames
 from splat4d.export.base import srgb_to_linear
 from splat4d.export.mesh import (Grid, MeshOptions, _density_at, density_field, grid_for_box, inverse_covariances,
                                  write_mesh_sequence)
-from splat4d.export.ply import (frame_ply_bytes, ply_property_names, ply_records_to_splats, splats_to_ply_records,
-                                write_ply_sequence)
+from splat4d.export.ply import frame_ply_bytes, write_ply_sequence
 from splat4d.export.usd import PRIM_PATHS, UsdOptions, build_usd_stage, write_usd
 from splat4d.model import Gaussians4D, KeyframedGaussians
+from splat4d.ply_layout import ply_property_names, ply_records_to_splats, splats_to_ply_records
 from splat4d.sh import SH_C0
 
 VELOCITY = np.array([0.6, -0.2, 0.1])

@@ -28,10 +28,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import sh as shmod
 from ..checkpoint import Checkpoint
 from ..errors import CheckpointError
 from ..model import KeyframedGaussians
+from ..ply_layout import ply_columns_to_sh, sh_degree_from_rest_count
 from ..quaternion import normalize
 from .common import natural_key, require_finite, static_model
 from .options import ImportRecord, check_options
@@ -207,23 +207,21 @@ def splat_columns(path: Path, cols: dict[str, np.ndarray], comments: list[str] |
     if missing:
         hint = " (it looks like a plain point cloud, not Gaussian splats)" if {"red", "x"} <= set(cols) else ""
         raise CheckpointError(f"{path}: not a 3DGS splat PLY: missing {', '.join(missing)}{hint}")
-    if len(rest) % 3:
-        raise CheckpointError(f"{path}: {len(rest)} f_rest columns is not a multiple of 3")
     try:
-        degree = shmod.sh_degree_from_bases(len(rest) // 3 + 1)
-    except ValueError:
-        raise CheckpointError(f"{path}: {len(rest)} f_rest columns match no SH degree 0..3 (expected 0, 9, 24 "
-                              f"or 45)") from None
+        degree = sh_degree_from_rest_count(len(rest))
+    except ValueError as exc:
+        raise CheckpointError(f"{path}: {exc}") from None
+
+    def columns(names: list[str]) -> np.ndarray:
+        if not names:
+            return np.zeros((len(cols["x"]), 0), np.float32)
+        return np.stack([cols[c].astype(np.float32) for c in names], -1)
 
     def stack(names: list[str]) -> Tensor:
-        return torch.from_numpy(np.stack([cols[c].astype(np.float32) for c in names], -1))
+        return torch.from_numpy(columns(names))
 
     n = len(cols["x"])
-    k = (degree + 1) ** 2
-    sh = torch.zeros((n, k, 3), dtype=torch.float32)
-    sh[:, 0] = stack(dc)
-    if k > 1:
-        sh[:, 1:] = stack(rest).reshape(n, 3, k - 1).transpose(1, 2)  # channel-major in the file
+    sh = torch.from_numpy(np.ascontiguousarray(ply_columns_to_sh(columns(dc), columns(rest))))
     log_scales = stack(scale)
     if log_scales.shape[1] == 1:
         log_scales = log_scales.expand(n, 3).contiguous()

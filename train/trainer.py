@@ -216,11 +216,11 @@ class Trainer:
         factor = self._resolution_factor()
         static = self.step < cfg.static_iters
         loss_sum, psnr_sum = 0.0, 0.0
+        model = self.model()  # the parameters only change at the optimizer step, after the batch
         for _ in range(cfg.batch_size):
             i = self._pick()
             view = self._views(factor)[i]
             target, mask = view_target(view, self.ds.background, self.device)
-            model = self.model()
             g = model.slice(view.time, sh_degree_t=deg_t)
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
             if cfg.densify.enabled:

@@ -132,9 +132,11 @@ def run(args: argparse.Namespace) -> int:
 
     summary = render_to_file(model, args.out, cameras, times, settings, args.fps, args.image_format, args.force,
                              progress=False if args.quiet else "render", crf=args.crf)
-    mean = lambda xs: sum(xs) / max(len(xs), 1)  # noqa: E731
+    import statistics
+
+    median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)
     print(f"wrote {args.out}: {summary.frames} frame(s) {width}x{height}"
           + (f" at {args.fps:g} fps" if summary.frames > 1 else "")
-          + f", {len(model):,} Gaussians, mean sort {mean(summary.sort_ms):.1f} ms + draw "
-            f"{mean(summary.draw_ms):.1f} ms per frame")
+          + f", {len(model):,} Gaussians, median sort {median(summary.sort_ms):.1f} ms + draw "
+            f"{median(summary.draw_ms):.1f} ms per frame")
     return 0

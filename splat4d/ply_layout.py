@@ -1,5 +1,5 @@
 """The standard 3DGS PLY column layout (graphdeco-inria ``GaussianModel.save_ply``), in one place for the PLY
-exporter (`splat4d.export.ply`) and importer (`splat4d.importers.ply`). numpy only.
+exporter (`splat4d.export.ply`) and importer (`splat4d.importers.ply`), on numpy arrays (no USD needed).
 
 Column layout (binary_little_endian 1.0, one ``element vertex N``, every property ``float``)::
 
@@ -71,14 +71,14 @@ def sh_degree_from_property_names(names: Sequence[str]) -> int:
 
 def sh_to_ply_columns(sh: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``[N, K, 3]`` coefficient-major SH -> (f_dc ``[N, 3]``, f_rest ``[N, 3(K-1)]`` channel-major)."""
-    n = sh.shape[0]
-    return sh[:, 0, :], sh[:, 1:, :].transpose(0, 2, 1).reshape(n, -1)
+    n, k = sh.shape[0], sh.shape[1]
+    return sh[:, 0, :], sh[:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (k - 1))  # explicit sizes: n may be 0
 
 
 def ply_columns_to_sh(f_dc: np.ndarray, f_rest: np.ndarray) -> np.ndarray:
     """Inverse of `sh_to_ply_columns`: (``[N, 3]``, ``[N, 3R]``) -> ``[N, R+1, 3]``."""
     n = f_dc.shape[0]
-    rest = f_rest.reshape(n, 3, -1).transpose(0, 2, 1)
+    rest = f_rest.reshape(n, 3, f_rest.shape[1] // 3).transpose(0, 2, 1)  # explicit sizes: n may be 0
     return np.concatenate([f_dc[:, None, :], rest], axis=1)
 
 

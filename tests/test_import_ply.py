@@ -146,3 +146,26 @@ def test_round_trip_through_splat4d_export_ply(tmp_path):
         torch.testing.assert_close(got.covariances, ref.covariances, atol=1e-5, rtol=0)
         torch.testing.assert_close(got.opacities, torch.where(ref.visible, ref.opacities, 0.0), atol=2e-6, rtol=0)
         torch.testing.assert_close(got.sh, ref.sh, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("degree", [0, 2])
+def test_empty_ply_reads_as_an_empty_model(tmp_path, degree):
+    s = random_splats(0, degree)
+    model = load_model(write_splat_ply(tmp_path / "empty.ply", **s)).model
+    assert len(model) == 0 and model.sh_degree == degree
+
+
+def test_a_frame_with_nothing_visible_exports_as_an_empty_ply(tmp_path):
+    """--drop-invisible at a time when every Gaussian has faded out: an empty file, not a crash."""
+    from splat4d.export.ply import write_ply_sequence
+    from splat4d.model import static_gaussians4d
+
+    s = random_splats(4, 1, seed=5)
+    model = static_gaussians4d(torch.tensor(s["means"], dtype=torch.float32),
+                               torch.exp(torch.tensor(s["log_scales"], dtype=torch.float32)),
+                               torch.tensor(s["quats"], dtype=torch.float32), torch.full((4,), 0.5),
+                               torch.rand(4, 3), time_range=(0.0, 1.0))
+    model.t_means[:] = 0.0
+    model.log_t_scales[:] = np.log(0.05)  # gone long before t = 1
+    paths = write_ply_sequence(model, tmp_path / "frames", [0.0, 1.0], drop_invisible=True)
+    assert len(load_model(paths[1]).model) == 0 and len(load_model(paths[0]).model) == 4

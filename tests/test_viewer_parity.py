@@ -98,13 +98,51 @@ def test_point_and_quad_splats_agree_at_the_image_edges_and_large_splats_fall_ba
     assert images["points"][..., 3].max() > 0.5
     np.testing.assert_allclose(images["points"], images["quads"], atol=2e-3)
 
-    big = synthetic_model(40, seed=13, radius=0.1, scale=0.25, speed=0.0, sh_degree=0)
-    close = orbit(20, 30, 1.0, fov_deg=60, width=160, height=160)
-    value, _ = compare(big, close, 0.5, primitive="auto")
-    assert value >= MIN_PSNR
-    r = SplatRenderer(headless_context(), big)
+    # with a small point limit, the larger splats of a batch are drawn as quads in runs between point runs
+    mixed = synthetic_model(800, seed=14, radius=0.4, scale=0.01, speed=0.1, sh_degree=0)
+    with torch.no_grad():
+        mixed.log_scales[:4] += 2.0  # four large Gaussians among small ones
+    cam = orbit(20, 30, 1.6, fov_deg=50, width=128, height=128)
+    r = SplatRenderer(headless_context(), mixed)
+    r._max_point = 32.0  # stands in for a context whose points are small (real limits: 255 llvmpipe, ~2k GPUs)
+    runs = []
+    splat_runs = r._splat_runs
+    r._splat_runs = lambda *a: runs.append(splat_runs(*a)) or runs[-1]
     try:
+        r.render(cam, 0.5, RenderSettings(transparent=True))
+        got = r.read_display()
+        kinds = {kind for batch in runs for _, _, kind in batch}
+        assert kinds == {"points", "quads"}, runs
+        r.render(cam, 0.5, RenderSettings(transparent=True, primitive="quads"))
+        np.testing.assert_allclose(got, r.read_display(), atol=2e-3)
         with pytest.raises(GLError, match="do not fit"):
-            r.render(close, 0.5, RenderSettings(primitive="points"))
+            r.render(cam, 0.5, RenderSettings(primitive="points"))
+    finally:
+        r.release()
+    value, _ = compare(mixed, cam, 0.5)
+    assert value >= MIN_PSNR
+
+
+def test_splat_runs_follow_the_cost_model():
+    r = SplatRenderer(headless_context(), synthetic_model(10, seed=1))
+    r.render(orbit(20, 30, 1.6, width=64, height=64), 0.5)  # sets the targets
+    auto = RenderSettings()
+    try:
+        def boxes(half_w, half_h, area):
+            b = np.zeros((len(half_w), 6), np.float32)
+            b[:, 2], b[:, 3], b[:, 4] = half_w, half_h, area
+            return b
+
+        small_round = boxes([3.0] * 4, [3.0] * 4, [20.0] * 4)  # 5 px squares: points
+        assert r._splat_runs(auto, small_round) == [(0, 4, "points")]
+        long_thin = boxes([40.0] * 4, [3.0] * 4, [60.0] * 4)  # 79 px squares for 60 px of quad: quads
+        assert r._splat_runs(auto, long_thin) == [(0, 4, "quads")]
+        one_huge = boxes([3.0, 3.0, 500.0, 3.0], [3.0] * 4, [20.0, 20.0, 9e5, 20.0])  # beyond the point limit
+        assert r._splat_runs(auto, one_huge) == [(0, 2, "points"), (2, 3, "quads"), (3, 4, "points")]
+        near_limit = boxes([100.0], [100.0], [39500.0])  # 199 px: fits, but not with a stale order's headroom
+        assert r._splat_runs(auto, near_limit)[0][2] == "points"
+        assert r._splat_runs(auto, near_limit, stale=True)[0][2] == "quads"
+        assert r._splat_runs(RenderSettings(mode="outlines"), small_round) == [(0, 4, "overlay")]
+        assert r._splat_runs(RenderSettings(primitive="quads"), small_round) == [(0, 4, "quads")]
     finally:
         r.release()

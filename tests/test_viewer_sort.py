@@ -103,3 +103,13 @@ def test_async_sorter_delivers_the_latest_request():
         assert sorter.poll() is None  # a result is handed out once
     finally:
         sorter.close()
+
+
+def test_dilogarithm_of_the_optical_mass():
+    from scipy.special import spence
+
+    from splat4d.viewer.sorting import _dilog
+
+    for x in (0.0, 1e-3, 0.3, 0.5, 0.5001, 0.8, 0.99):
+        assert _dilog(x) == pytest.approx(spence(1.0 - x), abs=2e-6), x
+

@@ -7,14 +7,15 @@ Per frame, three GL passes:
    order at t (`splat4d.viewer.sorting`), and transform feedback writes their 2D footprints in that order. Doing
    this once per Gaussian instead of once per quad corner is what makes a software rasterizer (Mesa llvmpipe)
    usable.
-2. **draw** (``splat_draw.glsl``): one splat per footprint (a GL point sprite over its bounding box, or an
-   instanced quad along its axes for the outline/centre modes and for Gaussians larger than the biggest point),
-   premultiplied alpha into a float32 target
-   cleared to 0, so colour = sum c a T and alpha = 1 - T exactly as the reference rasterizer composites.
-   Either back to front (ONE, ONE_MINUS_SRC_ALPHA), or (default) front to back (ONE_MINUS_DST_ALPHA, ONE) in
-   stages: between stages, pixels whose transmittance reached TRANSMITTANCE_THRESHOLD (where the reference stops)
-   are masked in the depth buffer and their tiles read back (``splat_screen.glsl``), so that later Gaussians
-   hidden behind them are rejected per fragment or skipped entirely. Same image, far less work in dense scenes.
+2. **draw** (``splat_draw.glsl``): one splat per footprint, a GL point sprite over its bounding box or an
+   instanced quad along its axes, whichever is cheaper (`SplatRenderer._splat_runs`; quads always for the
+   outline/centre modes and for Gaussians larger than the biggest point), premultiplied alpha into a float32
+   target cleared to 0, so colour = sum c a T and alpha = 1 - T exactly as the reference rasterizer composites.
+   Either back to front (ONE, ONE_MINUS_SRC_ALPHA), or (default) front to back (ONE_MINUS_DST_ALPHA, ONE). Front
+   to back and when enough Gaussians can be hidden (`_hideable_fraction`), in stages: between stages, pixels whose
+   transmittance reached TRANSMITTANCE_THRESHOLD (where the reference stops) are masked in the depth buffer and
+   their tiles read back (``splat_screen.glsl``), so that later Gaussians hidden behind them are rejected per
+   fragment or skipped entirely. Same image, far less work in dense scenes.
 3. **resolve** (``splat_screen.glsl``): background, depth colour map or alpha view, into the display target
    (an offscreen float texture, or the window).
 
@@ -63,11 +64,13 @@ _DEPTH_TILE = 16
 #: Tile edge (pixels) of the saturation read-back used to skip hidden Gaussians.
 _OCCLUSION_TILE = 4
 #: Splat primitives: "points" (one GL point per Gaussian, fastest on llvmpipe), "quads" (one instanced quad), or
-#: "auto" (points where they can be drawn, see `SplatRenderer._use_points`).
+#: "auto" (points where they can be drawn, see `SplatRenderer._splat_runs`).
 PRIMITIVES: tuple[str, ...] = ("auto", "points", "quads")
 #: What a quad costs more than a point, in shaded pixels (llvmpipe, 2 cores: ~1.2 us vs ~0.3 us per splat set-up,
-#: ~3.4 ns per pixel); `SplatRenderer._use_points` weighs it against the points' extra pixels.
+#: ~3.4 ns per pixel); `SplatRenderer._splat_runs` weighs it against the points' extra pixels.
 _QUAD_EXTRA_COST = 260.0
+#: At most this many alternating point/quad runs per batch; beyond, the batch is drawn as quads in one call.
+_MAX_RUNS = 16
 #: Modes drawn with points when the primitive allows; outlines and centres need the quad's own footprint.
 _POINT_MODES = ("color", "depth", "alpha")
 
@@ -366,7 +369,8 @@ class SplatRenderer:
         return stats
 
     def _draw_splats(self, camera: Camera, t: float, settings: RenderSettings, splats, order: SortResult) -> int:
-        """Pre-pass + instanced quads. Front to back, the order is drawn in stages (`_stages`); after each stage
+        """Pre-pass + splats (points and/or quads, `_splat_runs`). Front to back, when `_hideable_fraction` says
+        it pays, the order is drawn in stages (`_stages`); after each stage
         the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD, where the reference rasterizer stops) are
         marked in the depth buffer, so later fragments there are rejected before shading, and their tiles are
         read back, so later Gaussians whose screen box lies entirely in saturated tiles are not drawn at all.
@@ -385,6 +389,8 @@ class SplatRenderer:
         staged = front_to_back and settings.mode in _POINT_MODES and \
             _hideable_fraction(order.boxes, camera.width, camera.height) >= _MIN_HIDEABLE
         stages = _stages(len(indices)) if staged else [(0, len(indices))]
+        # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
+        stale = order.key != SortKey.of(camera, t, settings.splat_scale)
         ctx.blend_equation = ctx.FUNC_ADD
         ctx.depth_func = "<"
         saturated, drawn = None, 0
@@ -395,7 +401,7 @@ class SplatRenderer:
                 keep = ~_hidden(stage_boxes, saturated, camera.height)
                 idx, stage_boxes = idx[keep], stage_boxes[keep]
             self._draw_stage(np.ascontiguousarray(idx, dtype=np.uint32), front_to_back, len(stages) > 1,
-                             self._use_points(settings, camera, stage_boxes), settings.mode)
+                             self._splat_runs(settings, stage_boxes, stale))
             drawn += len(idx)
             if k + 1 < len(stages):
                 if len(idx):
@@ -436,31 +442,47 @@ class SplatRenderer:
         flags = np.frombuffer(tg.tiles_fbo.read(components=1, dtype="f1"), np.uint8).reshape(th, tw)
         return _saturated_table(flags[::-1] > 127)
 
-    def _use_points(self, settings: RenderSettings, camera: Camera, boxes: np.ndarray) -> bool:
-        """Draw these Gaussians (screen boxes `boxes`, see `SortResult`) as points rather than quads?
+    def _splat_runs(self, settings: RenderSettings, boxes: np.ndarray, stale: bool = False) -> list[tuple]:
+        """How to draw a batch of Gaussians (screen boxes `boxes`, see `SortResult`, in draw order): contiguous
+        runs ``(first, end, kind)``, kind one of "points", "quads" (instanced) or "overlay" (quads of the
+        outline/centre modes).
 
-        "auto" picks the cheaper by a cost model measured on llvmpipe, in pixel-equivalents: a point shades its
-        whole bounding square but costs little to set up; a quad shades only its oriented rectangle but costs
+        "auto" draws as points every Gaussian that fits the largest point (with 2x headroom when the boxes are
+        `stale`, i.e. sorted for another view), unless the cost model says quads are cheaper for the batch; the
+        rest as quads. The model was measured on llvmpipe, in pixel-equivalents: a point shades its whole
+        bounding square but costs little to set up; a quad shades only its oriented rectangle but costs
         `_QUAD_EXTRA_COST` pixels more (two triangles, four vertices). Points win for small or round splats,
         quads for large elongated ones.
         """
-        if settings.primitive == "quads" or settings.mode not in _POINT_MODES:
-            return False
-        if not boxes.shape[0]:
-            return True
+        n = boxes.shape[0]
+        if settings.mode not in _POINT_MODES:
+            return [(0, n, "overlay")]
+        if settings.primitive == "quads" or not n:
+            return [(0, n, "quads")]
+        if max(self._targets.size) + 2 * self._point_margin > self._max_viewport:
+            if settings.primitive == "points":
+                raise GLError(f"a {self._targets.size[0]}x{self._targets.size[1]} image is too large to draw with "
+                              f"points on this context (viewport limit {self._max_viewport}); use the 'auto' or "
+                              "'quads' primitive")
+            return [(0, n, "quads")]
         side = 2.0 * np.maximum(boxes[:, 2], boxes[:, 3]) - 1.0  # the point size splat_draw.glsl asks for
-        fits = float(side.max()) <= self._max_point and \
-            max(self._targets.size) + 2 * self._point_margin <= self._max_viewport
         if settings.primitive == "points":
-            if not fits:
+            if float(side.max()) > self._max_point:
                 raise GLError(f"splats up to {float(side.max()):.0f} px wide do not fit this context's points (at "
                               f"most {self._max_point:.0f} px); use the 'auto' or 'quads' primitive")
-            return True
-        extra_fragments = float(np.sum(side * side, dtype=np.float64) - np.sum(boxes[:, 4], dtype=np.float64))
-        return fits and extra_fragments < _QUAD_EXTRA_COST * boxes.shape[0]
+            return [(0, n, "points")]
+        fits = side <= (0.5 if stale else 1.0) * self._max_point
+        extra = float(np.sum(side[fits] ** 2, dtype=np.float64) - np.sum(boxes[fits, 4], dtype=np.float64))
+        if not fits.any() or extra >= _QUAD_EXTRA_COST * int(fits.sum()):
+            return [(0, n, "quads")]
+        change = np.flatnonzero(fits[1:] != fits[:-1]) + 1
+        bounds = [0, *change.tolist(), n]
+        if len(bounds) - 1 > _MAX_RUNS:  # oversized splats scattered through the batch: one draw call instead
+            return [(0, n, "quads")]
+        return [(a, b, "points" if fits[a] else "quads") for a, b in zip(bounds[:-1], bounds[1:])]
 
-    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool, points: bool, mode: str) -> None:
-        """Pre-process the Gaussians `idx` (in draw order) and draw them as points or instanced quads."""
+    def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool, runs: list[tuple]) -> None:
+        """Pre-process the Gaussians `idx` (in draw order) and draw them in `runs` (`_splat_runs`)."""
         if not idx.shape[0]:
             return
         ctx, tg = self.ctx, self._targets
@@ -473,18 +495,32 @@ class SplatRenderer:
         ctx.blend_func = ((ctx.ONE_MINUS_DST_ALPHA, ctx.ONE) if front_to_back
                           else (ctx.ONE, ctx.ONE_MINUS_SRC_ALPHA))
         tg.accum_fbo.depth_mask = False
-        if points:
-            w, h = tg.size
-            m = self._point_margin
-            ctx.viewport = (-m, -m, w + 2 * m, h + 2 * m)  # see splat_draw.glsl: points clip by their centre
-            ctx.enable(ctx.PROGRAM_POINT_SIZE)
-            self._splat_vaos["points"].render(ctx.POINTS, vertices=idx.shape[0])
+        w, h = tg.size
+        m = self._point_margin
+        try:
+            for first, end, kind in runs:
+                if kind == "points":
+                    ctx.viewport = (-m, -m, w + 2 * m, h + 2 * m)  # splat_draw.glsl: points clip by their centre
+                    ctx.enable(ctx.PROGRAM_POINT_SIZE)
+                    self._splat_vaos["points"].render(ctx.POINTS, vertices=end - first, first=first)
+                else:
+                    ctx.disable(ctx.PROGRAM_POINT_SIZE)
+                    ctx.viewport = (0, 0, w, h)
+                    self._bind_instances(kind, first)
+                    self._splat_vaos[kind].render(ctx.TRIANGLE_STRIP, vertices=4, instances=end - first)
+        finally:
             ctx.disable(ctx.PROGRAM_POINT_SIZE)
             ctx.viewport = (0, 0, w, h)
-        else:
-            kind = "quads" if mode in _POINT_MODES else "overlay"
-            self._splat_vaos[kind].render(ctx.TRIANGLE_STRIP, vertices=4, instances=idx.shape[0])
-        tg.accum_fbo.depth_mask = True
+            tg.accum_fbo.depth_mask = True
+
+    def _bind_instances(self, kind: str, first: int) -> None:
+        """Point the per-instance attributes of quad VAO `kind` at splat `first` of the splat buffer (GL 3.3 has
+        no base instance)."""
+        prog, vao = self._splat_progs[kind], self._splat_vaos[kind]
+        for k, name in enumerate(_SPLAT_FIELDS):
+            if name in prog:
+                vao.bind(prog[name].location, "f", self._splat_buf, "4f", offset=first * _SPLAT_BYTES + 16 * k,
+                         stride=_SPLAT_BYTES, divisor=1)
 
     def _set_pre_uniforms(self, camera: Camera, t: float, settings: RenderSettings,
                           splats: splatlib.SplatArrays) -> None:

@@ -230,8 +230,9 @@ def _depth_order_numpy(splats: SplatArrays, camera: Camera, t: float, scale: flo
         keep = ((e < _MAX_EXPONENT) & (o >= ALPHA_THRESHOLD) & (z > NEAR_PLANE) & (det > 0) & (u + hx >= 0)
                 & (u - hx <= w) & (v + hy >= 0) & (v - hy <= h))
         area = 4.0 * rr * np.sqrt(det)
-        k = np.arange(1, 2001)
-        mass = 2.0 * np.pi * np.sqrt(det) * (np.clip(o, 0, MAX_ALPHA)[:, None] ** k / k ** 2).sum(1)
+        from scipy.special import spence  # Li2(x) = spence(1 - x)
+
+        mass = 2.0 * np.pi * np.sqrt(det) * spence(1.0 - np.clip(o, 0.0, MAX_ALPHA))
     neg = np.where(keep, -z, np.inf).astype(np.float32)
     boxes = np.stack([u, v, hx, hy, area, mass], -1).astype(np.float32)
     return _finish(neg, boxes, SortKey.of(camera, t, scale), start)

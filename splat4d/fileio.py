@@ -18,15 +18,23 @@ from .errors import OutputExistsError
 
 
 def _umask() -> int:
-    mask = os.umask(0o022)  # reading the umask means setting it; put it straight back
+    """The process umask, read without changing it where the OS allows (Linux), else by set-and-restore."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
     os.umask(mask)
     return mask
 
 
-#: Temporary files and folders (mkstemp: 0600, mkdtemp: 0700) get the modes a plain open()/mkdir() would give, so
-#: outputs are as readable as the user's other files once renamed into place.
-_FILE_MODE = 0o666 & ~_umask()
-_DIR_MODE = 0o777 & ~_umask()
+def _output_mode(directory: bool = False) -> int:
+    """The mode a plain open()/mkdir() would give now. Temp files (mkstemp: 0600, mkdtemp: 0700) get it before
+    the rename, so outputs are as readable as the user's other files."""
+    return (0o777 if directory else 0o666) & ~_umask()
 
 
 def check_writable(path: str | os.PathLike, force: bool = False) -> Path:
@@ -50,7 +58,7 @@ def atomic_path(path: str | os.PathLike, force: bool = False, suffix: str | None
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp.", suffix=path.suffix if suffix is None else suffix,
                                dir=path.parent)
     os.close(fd)
-    os.chmod(tmp, _FILE_MODE)
+    os.chmod(tmp, _output_mode())
     tmp_path = Path(tmp)
     try:
         yield tmp_path
@@ -81,7 +89,7 @@ def atomic_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     path = check_writable(path, force)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    os.chmod(tmp, _DIR_MODE)
+    os.chmod(tmp, _output_mode(directory=True))
     try:
         yield tmp
         if path.exists():

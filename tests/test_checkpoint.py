@@ -52,13 +52,16 @@ def test_atomic_outputs_get_the_usual_permissions(tmp_path):
     plainly written file, or the user's other tools and users cannot open it."""
     from splat4d.fileio import atomic_dir
 
-    umask = os.umask(0o022)
-    os.umask(umask)
-    path = save_checkpoint(tmp_path / "m.safetensors", random_model(3, "current"))
-    assert path.stat().st_mode & 0o777 == 0o666 & ~umask
-    with atomic_dir(tmp_path / "folder") as d:
-        (d / "a.txt").write_text("a")
-    assert (tmp_path / "folder").stat().st_mode & 0o777 == 0o777 & ~umask
+    for umask in (0o022, 0o077):
+        previous = os.umask(umask)
+        try:
+            path = save_checkpoint(tmp_path / f"m{umask:o}.safetensors", random_model(3, "current"))
+            with atomic_dir(tmp_path / f"folder{umask:o}") as d:
+                (d / "a.txt").write_text("a")
+        finally:
+            os.umask(previous)
+        assert path.stat().st_mode & 0o777 == 0o666 & ~umask
+        assert (tmp_path / f"folder{umask:o}").stat().st_mode & 0o777 == 0o777 & ~umask
 
 
 def write_raw(path, tensors, meta):

@@ -12,4 +12,4 @@ splat4d train "$OUT/spinner" --out "$OUT/spinner.safetensors" --force
 echo "== evaluation on the test views (other azimuths, elevations and times)"
 splat4d eval "$OUT/spinner.safetensors" "$OUT/spinner" --json "$OUT/eval.json" --force
 splat4d info "$OUT/spinner.safetensors"
-echo "== done: view it with  .venv/bin/splat4d view $OUT/spinner.safetensors"
+echo "== done: view it with  .venv/bin/splat4d view $OUT/spinner.safetensors   (.venv/bin/splat4d view alone opens the bundled one)"

@@ -41,7 +41,6 @@ def dense_render(g: Gaussians3D, camera: Camera, background=(0.0, 0.0, 0.0), sh_
     ``radii [N]`` (int64, 0 = culled), ``means2d [N, 2]``.
     """
     dtype, dev = g.means.dtype, g.means.device
-    n = g.means.shape[0]
     w2c = torch.as_tensor(camera.w2c, dtype=dtype, device=dev)
     rot, trans = w2c[:3, :3], w2c[:3, 3]
     pc = torch.einsum("ij,nj->ni", rot, g.means) + trans

@@ -3,10 +3,10 @@ sample), and reachable from ``splat4d sample --trained`` and ``splat4d view`` wi
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
+import torch
 
 from splat4d.checkpoint import load_checkpoint
 from splat4d.cli import main
@@ -14,6 +14,7 @@ from splat4d.errors import Splat4DError
 from splat4d.model import Gaussians4D
 from splat4d.samples import TRAINED, DatasetConfig, MeshRenderer, get_sample, trained_checkpoint
 from splat4d.samples import dataset as sample_dataset
+from splat4d.train import losses
 from splat4d.viewer.renderer import RenderSettings, render_image
 
 #: The bundled model scores ~31 dB on the sample's test split (bench/train.py); a broken checkpoint, a broken
@@ -27,8 +28,8 @@ def bundled():
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return 100.0 if mse == 0 else 10.0 * math.log10(1.0 / mse)
+    """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
+    return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
 def test_bundled_checkpoint_is_small_and_says_how_it_was_made(bundled):

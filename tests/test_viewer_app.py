@@ -4,7 +4,6 @@ different from the headless (EGL) render of the same view."""
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -15,10 +14,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from splat4d.cameras import Camera, orbit
 from splat4d.checkpoint import load_checkpoint, save_checkpoint
 from splat4d.samples import trained_checkpoint
+from splat4d.train import losses
 from splat4d.viewer.camera_path import CameraKey, CameraPath
 from splat4d.viewer.renderer import RenderSettings, render_image
 from splat4d.viewer.synthetic import synthetic_model
@@ -65,8 +66,8 @@ def run_view(display: str, *args: str) -> subprocess.CompletedProcess:
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 100.0 if mse == 0 else 10.0 * math.log10(1.0 / mse)
+    """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
+    return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
 def headless_of(report: dict, model) -> np.ndarray:

@@ -4,7 +4,6 @@ an off-centre principal point, and both blending orders."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -15,6 +14,7 @@ from splat4d.checkpoint import load_checkpoint, save_checkpoint
 from splat4d.errors import GLError
 from splat4d.model import KeyframedGaussians
 from splat4d.samples import trained_checkpoint
+from splat4d.train import losses
 from splat4d.train.rasterize import rasterize
 from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
 from splat4d.viewer.synthetic import synthetic_model
@@ -23,8 +23,8 @@ MIN_PSNR = 40.0
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return 100.0 if mse == 0 else 10.0 * math.log10(1.0 / mse)
+    """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
+    return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
 def compare(model, camera, t, background=(0.1, 0.2, 0.3), composite="front-to-back", primitive="auto"):

@@ -155,19 +155,19 @@ def test_skipping_hidden_gaussians_keeps_the_image():
 
 
 def test_staging_is_used_only_where_saturation_can_hide_gaussians():
-    from splat4d.viewer.renderer import _DEPTH_TILE, _hideable_fraction
+    from splat4d.viewer.sorting import DEPTH_TILE, hideable_fraction
 
     saturating = -math.log(TRANSMITTANCE_THRESHOLD)
-    tile_area = _DEPTH_TILE * _DEPTH_TILE
+    tile_area = DEPTH_TILE * DEPTH_TILE
     # 10 Gaussians in one tile with twice the saturating optical depth: about half lie behind the stop
     boxes = np.zeros((10, 6), np.float32)
     boxes[:, :2] = 5.0
     boxes[:, 5] = 2 * saturating * tile_area / 10
-    assert _hideable_fraction(boxes, 64, 64) == pytest.approx(0.5, rel=1e-5)
+    assert hideable_fraction(boxes, 64, 64) == pytest.approx(0.5, rel=1e-5)
     # spread over separate tiles, none saturates
-    boxes[:, 0] = np.arange(10) * _DEPTH_TILE * 0.99
+    boxes[:, 0] = np.arange(10) * DEPTH_TILE * 0.99
     boxes[:, 1] = 40.0
-    assert _hideable_fraction(boxes, 200, 64) == 0.0
+    assert hideable_fraction(boxes, 200, 64) == 0.0
     # a faint cloud is drawn in one stage (no read-backs), with the same image as back to front
     faint = synthetic_model(20000, seed=3, sh_degree=0, radius=0.3, scale=0.01, speed=0.1)
     faint.opacity_logits.data[:] = -4.0
@@ -179,7 +179,7 @@ def test_staging_is_used_only_where_saturation_can_hide_gaussians():
     try:
         ftb = r.render(cam, 0.5, RenderSettings(transparent=True))
         front = r.read_display()
-        assert ftb.visible > 16384 and _hideable_fraction(r.sort(cam, 0.5).boxes, 96, 96) < 0.5
+        assert ftb.visible > 16384 and r.sort(cam, 0.5).hideable < 0.5
         assert not masks  # one stage: no saturation masks, no read-backs
         r.render(cam, 0.5, RenderSettings(transparent=True, composite="back-to-front"))
         back = r.read_display()

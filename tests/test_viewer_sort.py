@@ -1,5 +1,5 @@
-"""Depth sorting at time t: two Gaussians that swap places, the numba kernel against its numpy twin, and the
-worker-thread sorter of the desktop app."""
+"""Depth sorting at time t: two Gaussians that swap places, the numba kernel against the trainer's projection of
+the model's slice, and the worker-thread sorter of the desktop app."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4
 from splat4d.model import Gaussians4D
 from splat4d.sh import rgb_to_sh
 from splat4d.viewer.renderer import RenderSettings, render_image
-from splat4d.viewer.sorting import AsyncSorter, _depth_order_numpy, depth_order
+from splat4d.viewer.sorting import AsyncSorter, depth_order
 from splat4d.viewer.splats import to_arrays
 from splat4d.viewer.synthetic import synthetic_model
 
@@ -53,16 +53,45 @@ def test_sort_at_time_t_swaps_two_crossing_gaussians():
             assert centre[front * 2] > 0.9 and centre[2 - front * 2] < 0.05, (t, composite, centre)
 
 
-def test_numba_sort_matches_numpy_twin():
+def reference_order(model, camera, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """What `depth_order` must give, from the model's own slice and the trainer's EWA projection (the math's one
+    place): the back-to-front indices and their (u, v, hx, hy, quad area, optical mass) boxes."""
+    from scipy.special import spence  # Li2(x) = spence(1 - x)
+
+    from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE
+    from splat4d.train.rasterize import project_gaussians
+
+    g = model.slice(t)
+    means, covs, o = g.means.double(), g.covariances.double(), g.opacities.double().numpy()
+    p = project_gaussians(means, covs, camera)
+    z, (u, v) = p.depths.numpy(), p.means2d.numpy().T
+    xx, xy, yy = p.cov2d.numpy().T
+    det = xx * yy - xy * xy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rr = 2.0 * np.log(o / ALPHA_THRESHOLD)
+        hx, hy = np.sqrt(rr * xx) + 1.0, np.sqrt(rr * yy) + 1.0
+        keep = (g.visible.numpy() & (o >= ALPHA_THRESHOLD) & (z > NEAR_PLANE) & (det > 0) & (u + hx >= 0)
+                & (u - hx <= camera.width) & (v + hy >= 0) & (v - hy <= camera.height))
+    order = np.flatnonzero(keep)[np.argsort(-z[keep], kind="stable")]
+    mass = 2.0 * np.pi * np.sqrt(det) * spence(1.0 - np.minimum(o, MAX_ALPHA))
+    boxes = np.stack([u, v, hx, hy, 4.0 * rr * np.sqrt(det), mass], -1)[order]
+    return order, boxes
+
+
+def test_numba_sort_matches_the_trainers_projection():
     model = synthetic_model(3000, seed=3, speed=0.5)
     splats = to_arrays(model)
     for t in (0.0, 0.37, 1.0):
         cam = orbit(15, 40 + 100 * t, 1.2, fov_deg=60, width=120, height=90)
-        fast, slow = depth_order(splats, cam, t), _depth_order_numpy(splats, cam, t)
+        fast = depth_order(splats, cam, t)
+        order, boxes = reference_order(model, cam, t)
         assert fast.visible > 100
-        np.testing.assert_array_equal(fast.order, slow.order)
-        np.testing.assert_allclose(fast.boxes, slow.boxes, rtol=1e-4, atol=1e-3)
-        assert fast.depth_range == pytest.approx(slow.depth_range)
+        np.testing.assert_array_equal(np.sort(fast.order), np.sort(order))
+        same = fast.order == order  # float32 vs float64 depths may swap near-ties only
+        assert same.mean() > 0.99
+        np.testing.assert_allclose(fast.boxes[same, :4], boxes[same, :4], rtol=1e-4, atol=5e-3)  # pixels
+        # areas and masses go with sqrt(det): float32 packing of near-flat covariances costs a few 1e-4
+        np.testing.assert_allclose(fast.boxes[same, 4:], boxes[same, 4:], rtol=2e-3)
 
 
 def test_culling_drops_only_invisible_gaussians():

@@ -12,7 +12,7 @@ Per frame, three GL passes:
    outline/centre modes and for Gaussians larger than the biggest point), premultiplied alpha into a float32
    target cleared to 0, so colour = sum c a T and alpha = 1 - T exactly as the reference rasterizer composites.
    Either back to front (ONE, ONE_MINUS_SRC_ALPHA), or (default) front to back (ONE_MINUS_DST_ALPHA, ONE). Front
-   to back and when enough Gaussians can be hidden (`_hideable_fraction`), in stages: between stages, pixels whose
+   to back and when enough Gaussians can be hidden (`SortResult.hideable`), in stages: between stages, pixels whose
    transmittance reached TRANSMITTANCE_THRESHOLD (where the reference stops) are masked in the depth buffer and
    their tiles read back (``splat_screen.glsl``), so that later Gaussians hidden behind them are rejected per
    fragment or skipped entirely. Same image, far less work in dense scenes.
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import TILE_SIZE, TRANSMITTANCE_THRESHOLD
+from splat4d.constants import TILE_SIZE
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -56,11 +56,9 @@ _MIN_STAGE = 2048
 #: ... and fewer than this many visible Gaussians are drawn in one stage.
 _MIN_STAGED = 16384
 #: Staging (and its read-backs, which stall the pipeline) only pays when at least this share of the visible
-#: Gaussians is expected to lie behind saturated pixels (`_hideable_fraction`). Measured on llvmpipe: estimates
+#: Gaussians is expected to lie behind saturated pixels (`SortResult.hideable`). Measured on llvmpipe: estimates
 #: of 0.32-0.38 drew 10-30% faster in one stage, 0.63 and above 1.5-6x faster staged.
 _MIN_HIDEABLE = 0.5
-#: Tile edge (pixels) over which `_hideable_fraction` sums optical depth.
-_DEPTH_TILE = 16
 #: Tile edge (pixels) of the saturation read-back used to skip hidden Gaussians.
 _OCCLUSION_TILE = 4
 #: Splat primitives: "points" (one GL point per Gaussian, fastest on llvmpipe), "quads" (one instanced quad), or
@@ -369,7 +367,7 @@ class SplatRenderer:
         return stats
 
     def _draw_splats(self, camera: Camera, t: float, settings: RenderSettings, splats, order: SortResult) -> int:
-        """Pre-pass + splats (points and/or quads, `_splat_runs`). Front to back, when `_hideable_fraction` says
+        """Pre-pass + splats (points and/or quads, `_splat_runs`). Front to back, when `SortResult.hideable` says
         it pays, the order is drawn in stages (`_stages`); after each stage
         the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD, where the reference rasterizer stops) are
         marked in the depth buffer, so later fragments there are rejected before shading, and their tiles are
@@ -387,7 +385,7 @@ class SplatRenderer:
         _set_uniforms(self._mask_prog, u_accum=0)
         _set_uniforms(self._tiles_prog, u_accum=0)
         staged = front_to_back and settings.mode in _POINT_MODES and \
-            _hideable_fraction(order.boxes, camera.width, camera.height) >= _MIN_HIDEABLE
+            order.hideable >= _MIN_HIDEABLE
         stages = _stages(len(indices)) if staged else [(0, len(indices))]
         # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
         stale = order.key != SortKey.of(camera, t, settings.splat_scale)
@@ -584,27 +582,6 @@ def _stages(count: int) -> list[tuple[int, int]]:
             out.append((first, end))
             first = end
     return out
-
-
-def _hideable_fraction(boxes: np.ndarray, width: int, height: int) -> float:
-    """Rough share of the Gaussians (screen boxes of a `SortResult`) that lie behind saturated pixels.
-
-    Sums each Gaussian's optical mass (column 5: -ln(1 - alpha) integrated over the image) into the
-    _DEPTH_TILE-pixel tile of its centre. A pixel saturates (the reference rasterizer stops) at optical depth
-    D* = -ln(TRANSMITTANCE_THRESHOLD); in a tile of optical depth D > D*, the share of its Gaussians beyond that
-    point is about 1 - D*/D, if their mass is spread evenly in depth.
-    """
-    if not boxes.shape[0]:
-        return 0.0
-    nx, ny = -(-width // _DEPTH_TILE), -(-height // _DEPTH_TILE)
-    tx = np.clip((boxes[:, 0] // _DEPTH_TILE).astype(np.int64), 0, nx - 1)
-    ty = np.clip((boxes[:, 1] // _DEPTH_TILE).astype(np.int64), 0, ny - 1)
-    tile = ty * nx + tx
-    depth = np.bincount(tile, weights=boxes[:, 5], minlength=nx * ny) / (_DEPTH_TILE * _DEPTH_TILE)
-    count = np.bincount(tile, minlength=nx * ny)
-    saturating = -math.log(TRANSMITTANCE_THRESHOLD)
-    behind = np.clip(1.0 - saturating / np.maximum(depth, 1e-12), 0.0, 1.0)
-    return float(np.dot(count, behind) / boxes.shape[0])
 
 
 def _saturated_table(saturated: np.ndarray) -> np.ndarray:

@@ -329,8 +329,15 @@ Model = Union[Gaussians4D, KeyframedGaussians]
 MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians}
 
 
-def model_bounds(model: Model, num_times: int = 9) -> tuple[Tensor, Tensor]:
-    """Axis-aligned box (min ``[3]``, max ``[3]``) of the visible means over `num_times` times in the time range."""
+def model_bounds(model: Model, num_times: int = 9, quantile: float = 0.0) -> tuple[Tensor, Tensor]:
+    """Axis-aligned box (min ``[3]``, max ``[3]``) of the visible means over `num_times` times in the time range.
+
+    With ``quantile = q > 0`` each time contributes the box between the q and 1 - q quantiles of its means per
+    axis instead of their extremes: a few floaters far from the object (common in trained models) then do not
+    stretch the box. The default (0) holds every mean, as exporters need.
+    """
+    if not 0.0 <= quantile < 0.5:
+        raise ModelError(f"bounds quantile must be in [0, 0.5), got {quantile}")
     t0, t1 = model.time_range
     lo, hi = None, None
     with torch.no_grad():
@@ -339,7 +346,11 @@ def model_bounds(model: Model, num_times: int = 9) -> tuple[Tensor, Tensor]:
             pts = g.means[g.visible]
             if pts.shape[0] == 0:
                 continue
-            a, b = pts.min(0).values, pts.max(0).values
+            if quantile > 0.0:
+                q = torch.tensor([quantile, 1.0 - quantile], dtype=pts.dtype, device=pts.device)
+                a, b = torch.quantile(pts, q, dim=0).unbind(0)
+            else:
+                a, b = pts.min(0).values, pts.max(0).values
             lo = a if lo is None else torch.minimum(lo, a)
             hi = b if hi is None else torch.maximum(hi, b)
     if lo is None:

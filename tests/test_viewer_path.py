@@ -144,3 +144,25 @@ def test_trajectories_and_time_modes():
     assert along[0] == 0.0 and along[15] == pytest.approx(0.5) and along[-1] == pytest.approx(1.0)
     with pytest.raises(CameraError, match="unknown time mode"):
         scene_times("bounce", 3, fps, (0.0, 1.0))
+
+
+def test_framing_ignores_a_few_floaters():
+    """The viewer frames the object, not the floaters a trained model keeps far away; exporters' bounds hold all."""
+    import torch
+
+    from splat4d.model import model_bounds, static_gaussians4d
+    from splat4d.viewer.trajectory import frame_model
+
+    gen = torch.Generator().manual_seed(0)
+    body = torch.rand((2000, 3), generator=gen, dtype=torch.float64) - 0.5  # unit cube at the origin
+    floaters = torch.tensor([[40.0, 0.0, 0.0], [0.0, -30.0, 5.0]], dtype=torch.float64)
+    means = torch.cat([body, floaters])
+    n = means.shape[0]
+    model = static_gaussians4d(means, torch.full((n, 3), 0.01, dtype=torch.float64),
+                               torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64).expand(n, 4),
+                               torch.full((n,), 0.5, dtype=torch.float64), torch.full((n, 3), 0.5, dtype=torch.float64))
+    framing = frame_model(model)
+    assert np.abs(framing.center).max() < 0.05
+    assert 0.8 < framing.radius < 0.9  # half the cube's diagonal, 0.87, less the outermost 0.5% per axis
+    lo, hi = model_bounds(model)
+    assert float(hi[0]) == pytest.approx(40.0) and float(lo[1]) == pytest.approx(-30.0)

@@ -47,10 +47,15 @@ class Framing:
         return margin * self.radius / math.sin(math.radians(0.5 * fov_deg))
 
 
+#: Share of the means left out at each end of every axis when framing a model (floaters far from the object).
+FRAMING_QUANTILE = 0.005
+
+
 def frame_model(model) -> Framing:
-    """`Framing` of a model from its bounds over time (`splat4d.model.model_bounds`)."""
+    """`Framing` of a model from its bounds over time (`splat4d.model.model_bounds`), leaving out the outermost
+    FRAMING_QUANTILE of its means per axis: a handful of floaters no longer shrinks the object on screen."""
     with torch.no_grad():
-        lo, hi = model_bounds(model)
+        lo, hi = model_bounds(model, quantile=FRAMING_QUANTILE)
     lo, hi = lo.double().numpy(), hi.double().numpy()
     return Framing(0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3))
 

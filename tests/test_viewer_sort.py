@@ -92,6 +92,11 @@ def test_numba_sort_matches_the_trainers_projection():
         np.testing.assert_allclose(fast.boxes[same, :4], boxes[same, :4], rtol=1e-4, atol=5e-3)  # pixels
         # areas and masses go with sqrt(det): float32 packing of near-flat covariances costs a few 1e-4
         np.testing.assert_allclose(fast.boxes[same, 4:], boxes[same, 4:], rtol=2e-3)
+        # the all-cores kernel (synchronous sorts) gives the serial one's result bit for bit
+        par = depth_order(splats, cam, t, parallel=True)
+        np.testing.assert_array_equal(par.order, fast.order)
+        np.testing.assert_array_equal(par.boxes, fast.boxes)
+        assert par.hideable == fast.hideable
 
 
 def test_culling_drops_only_invisible_gaussians():

@@ -305,7 +305,7 @@ class SplatRenderer:
         key = SortKey.of(camera, t, scale)
         splats = self.splats_at(t)
         if self._order is None or self._order.key != key:
-            self._order = depth_order(splats, camera, t, scale)
+            self._order = depth_order(splats, camera, t, scale, parallel=True)  # nothing else runs meanwhile
         return self._order
 
     # --- targets ----------------------------------------------------------------------------------------------

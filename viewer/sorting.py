@@ -9,8 +9,9 @@ computed as splat_preprocess.glsl and the trainer's rasterizer do, and its opaci
 skip Gaussians hidden behind pixels that are already opaque and to choose between point and quad splats.
 
 `depth_order` is a fused numba kernel plus numpy's argsort; both release the GIL, so the desktop app sorts in a
-worker thread (a parallel kernel was at most 1.3x faster on 2 cores: not worth competing with the rasterizer
-threads of a software GL); the tests hold it against the trainer's projection. `AsyncSorter` runs sorts in a
+worker thread with the serial kernel (not competing with the rasterizer threads of a software GL), while a caller
+that waits for the order (offline rendering) runs the kernel on all cores; the tests hold it against the trainer's
+projection. `AsyncSorter` runs sorts in a
 thread and always hands back the newest finished order, so drawing never waits for a sort.
 """
 
@@ -102,88 +103,116 @@ def _dilog(x):
     return math.pi * math.pi / 6.0 - math.log(x) * math.log(y) - s
 
 
-@numba.njit(cache=True, nogil=True)
-def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, max_alpha, near, eps2d,
-                clamp, out, boxes):
+@numba.njit(cache=True, nogil=True, inline="always")
+def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, lims, max_exp, alpha_min, max_alpha, near, eps2d,
+               out, boxes):
     """out[i] = -depth of Gaussian i at t (+inf when culled, see module doc); boxes[i] = (u, v, half-width,
     half-height, quad area, optical mass): the pixel box holding every pixel it can give alpha >= alpha_min, the
     area of the quad along its axes out to that cut-off (what splat_draw.glsl draws), and its optical depth
-    -ln(1 - alpha) integrated over the image plane (pixels)."""
-    n = mean_t.shape[0]
+    -ln(1 - alpha) integrated over the image plane (pixels). `lims`: `_frustum_limits`."""
     fx, fy, cx, cy = view[12], view[13], view[14], view[15]
-    lim_x0 = cx / fx + (clamp - 1.0) * 0.5 * width / fx
-    lim_x1 = (width - cx) / fx + (clamp - 1.0) * 0.5 * width / fx
-    lim_y0 = cy / fy + (clamp - 1.0) * 0.5 * height / fy
-    lim_y1 = (height - cy) / fy + (clamp - 1.0) * 0.5 * height / fy
-    s2 = scale * scale
-    for i in range(n):
-        out[i] = np.inf
-        dt = t - mean_t[i, 3]
-        e = dt * dt * motion[i, 3]
-        if not e < max_exp:
-            continue
-        o = cov[i, 6] * math.exp(-e)
-        if not o >= alpha_min:
-            continue
-        px = mean_t[i, 0] + motion[i, 0] * dt
-        py = mean_t[i, 1] + motion[i, 1] * dt
-        pz = mean_t[i, 2] + motion[i, 2] * dt
-        x = view[0] * px + view[1] * py + view[2] * pz + view[3]
-        y = view[4] * px + view[5] * py + view[6] * pz + view[7]
-        z = view[8] * px + view[9] * py + view[10] * pz + view[11]
-        if not z > near:
-            continue
-        # the EWA projection of the trainer's rasterizer (and splat_preprocess.glsl): rows of J R, J at the
-        # clamped x/z, y/z; Sigma_2D = (J R) Sigma (J R)^T + eps2d
-        iz = 1.0 / z
-        tx = min(max(x * iz, -lim_x0), lim_x1)
-        ty = min(max(y * iz, -lim_y0), lim_y1)
-        r0 = fx * iz * view[0] - fx * tx * iz * view[8]
-        r1 = fx * iz * view[1] - fx * tx * iz * view[9]
-        r2 = fx * iz * view[2] - fx * tx * iz * view[10]
-        q0 = fy * iz * view[4] - fy * ty * iz * view[8]
-        q1 = fy * iz * view[5] - fy * ty * iz * view[9]
-        q2 = fy * iz * view[6] - fy * ty * iz * view[10]
-        c00, c01, c02 = cov[i, 0] * s2, cov[i, 1] * s2, cov[i, 2] * s2
-        c11, c12, c22 = cov[i, 3] * s2, cov[i, 4] * s2, cov[i, 5] * s2
-        m0 = c00 * r0 + c01 * r1 + c02 * r2
-        m1 = c01 * r0 + c11 * r1 + c12 * r2
-        m2 = c02 * r0 + c12 * r1 + c22 * r2
-        a = r0 * m0 + r1 * m1 + r2 * m2 + eps2d
-        b = q0 * m0 + q1 * m1 + q2 * m2
-        c = q0 * (c00 * q0 + c01 * q1 + c02 * q2) + q1 * (c01 * q0 + c11 * q1 + c12 * q2) \
-            + q2 * (c02 * q0 + c12 * q1 + c22 * q2) + eps2d
-        det = a * c - b * b
-        if not det > 0.0:
-            continue
-        rr = 2.0 * math.log(o / alpha_min)  # squared cut-off radius in std-devs
-        hx = math.sqrt(rr * a) + 1.0  # + 1 px: float32 on the GPU, pixel-centre rounding
-        hy = math.sqrt(rr * c) + 1.0
-        u = fx * x * iz + cx
-        v = fy * y * iz + cy
-        if u + hx < 0.0 or u - hx > width or v + hy < 0.0 or v - hy > height:
-            continue
-        out[i] = -z
-        boxes[i, 0] = u
-        boxes[i, 1] = v
-        boxes[i, 2] = hx
-        boxes[i, 3] = hy
-        boxes[i, 4] = 4.0 * rr * math.sqrt(det)
-        # optical depth -ln(1 - alpha) integrated over the plane: 2 pi sqrt(det) Li2(o) (alpha is capped at
-        # max_alpha: so is o here, to stay finite)
-        boxes[i, 5] = 2.0 * math.pi * math.sqrt(det) * _dilog(min(o, max_alpha))
+    lim_x0, lim_x1, lim_y0, lim_y1 = lims
+    out[i] = np.inf
+    dt = t - mean_t[i, 3]
+    e = dt * dt * motion[i, 3]
+    if not e < max_exp:
+        return
+    o = cov[i, 6] * math.exp(-e)
+    if not o >= alpha_min:
+        return
+    px = mean_t[i, 0] + motion[i, 0] * dt
+    py = mean_t[i, 1] + motion[i, 1] * dt
+    pz = mean_t[i, 2] + motion[i, 2] * dt
+    x = view[0] * px + view[1] * py + view[2] * pz + view[3]
+    y = view[4] * px + view[5] * py + view[6] * pz + view[7]
+    z = view[8] * px + view[9] * py + view[10] * pz + view[11]
+    if not z > near:
+        return
+    # the EWA projection of the trainer's rasterizer (and splat_preprocess.glsl): rows of J R, J at the
+    # clamped x/z, y/z; Sigma_2D = (J R) Sigma (J R)^T + eps2d
+    iz = 1.0 / z
+    tx = min(max(x * iz, -lim_x0), lim_x1)
+    ty = min(max(y * iz, -lim_y0), lim_y1)
+    r0 = fx * iz * view[0] - fx * tx * iz * view[8]
+    r1 = fx * iz * view[1] - fx * tx * iz * view[9]
+    r2 = fx * iz * view[2] - fx * tx * iz * view[10]
+    q0 = fy * iz * view[4] - fy * ty * iz * view[8]
+    q1 = fy * iz * view[5] - fy * ty * iz * view[9]
+    q2 = fy * iz * view[6] - fy * ty * iz * view[10]
+    c00, c01, c02 = cov[i, 0] * s2, cov[i, 1] * s2, cov[i, 2] * s2
+    c11, c12, c22 = cov[i, 3] * s2, cov[i, 4] * s2, cov[i, 5] * s2
+    m0 = c00 * r0 + c01 * r1 + c02 * r2
+    m1 = c01 * r0 + c11 * r1 + c12 * r2
+    m2 = c02 * r0 + c12 * r1 + c22 * r2
+    a = r0 * m0 + r1 * m1 + r2 * m2 + eps2d
+    b = q0 * m0 + q1 * m1 + q2 * m2
+    c = q0 * (c00 * q0 + c01 * q1 + c02 * q2) + q1 * (c01 * q0 + c11 * q1 + c12 * q2) \
+        + q2 * (c02 * q0 + c12 * q1 + c22 * q2) + eps2d
+    det = a * c - b * b
+    if not det > 0.0:
+        return
+    rr = 2.0 * math.log(o / alpha_min)  # squared cut-off radius in std-devs
+    hx = math.sqrt(rr * a) + 1.0  # + 1 px: float32 on the GPU, pixel-centre rounding
+    hy = math.sqrt(rr * c) + 1.0
+    u = fx * x * iz + cx
+    v = fy * y * iz + cy
+    if u + hx < 0.0 or u - hx > width or v + hy < 0.0 or v - hy > height:
+        return
+    out[i] = -z
+    boxes[i, 0] = u
+    boxes[i, 1] = v
+    boxes[i, 2] = hx
+    boxes[i, 3] = hy
+    boxes[i, 4] = 4.0 * rr * math.sqrt(det)
+    # optical depth -ln(1 - alpha) integrated over the plane: 2 pi sqrt(det) Li2(o) (alpha is capped at
+    # max_alpha: so is o here, to stay finite)
+    boxes[i, 5] = 2.0 * math.pi * math.sqrt(det) * _dilog(min(o, max_alpha))
 
 
-def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.0) -> SortResult:
-    """Sort the drawable Gaussians of `splats` back to front at time `t` (see module doc)."""
+@numba.njit(cache=True, nogil=True, inline="always")
+def _frustum_limits(view, width, height, clamp):
+    """The x/z and y/z bounds at which the EWA Jacobian is clamped (FRUSTUM_CLAMP times the half image)."""
+    fx, fy, cx, cy = view[12], view[13], view[14], view[15]
+    return (cx / fx + (clamp - 1.0) * 0.5 * width / fx, (width - cx) / fx + (clamp - 1.0) * 0.5 * width / fx,
+            cy / fy + (clamp - 1.0) * 0.5 * height / fy, (height - cy) / fy + (clamp - 1.0) * 0.5 * height / fy)
+
+
+# The key kernel twice: serial, for a sort thread running beside the GL rasterizer's threads (`AsyncSorter`), and
+# over all cores, for a caller that waits for the order with nothing else running (`SplatRenderer.sort`). Two
+# functions rather than two builds of one: numba's cache keys a build by its function, not by its flags.
+@numba.njit(cache=True, nogil=True)
+def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, max_alpha, near, eps2d,
+                clamp, out, boxes):
+    """`_depth_key` for every Gaussian."""
+    lims = _frustum_limits(view, width, height, clamp)
+    for i in range(mean_t.shape[0]):
+        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, lims, max_exp, alpha_min,
+                   max_alpha, near, eps2d, out, boxes)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _depth_keys_parallel(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, max_alpha, near,
+                         eps2d, clamp, out, boxes):
+    """`_depth_keys` on all cores (the same result)."""
+    lims = _frustum_limits(view, width, height, clamp)
+    for i in numba.prange(mean_t.shape[0]):
+        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, lims, max_exp, alpha_min,
+                   max_alpha, near, eps2d, out, boxes)
+
+
+def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.0,
+                parallel: bool = False) -> SortResult:
+    """Sort the drawable Gaussians of `splats` back to front at time `t` (see module doc); `parallel` computes the
+    keys on all cores (the same result)."""
     start = time.perf_counter()
     n = len(splats)
     neg = np.empty(n, np.float32)
     boxes = np.empty((n, 6), np.float32)
     if n:
-        _depth_keys(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
-                    float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE,
-                    EPS2D, FRUSTUM_CLAMP, neg, boxes)
+        kernel = _depth_keys_parallel if parallel else _depth_keys
+        kernel(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
+               float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE, EPS2D,
+               FRUSTUM_CLAMP, neg, boxes)
     return _finish(neg, boxes, SortKey.of(camera, t, scale), start)
 
 

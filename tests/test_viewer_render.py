@@ -94,6 +94,25 @@ def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message
     assert message in err and "\n" not in err and "Traceback" not in err
 
 
+def test_a_still_image_is_one_frame(ckpt, tmp_path, capsys, monkeypatch):
+    """An image output defaults to one frame; asking it for several fails at once, naming the user's path."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", str(ckpt), "--out", "still.png", "--size", "40x30", "--quiet"]) == 0
+    assert "1 frame(s)" in capsys.readouterr().out and (tmp_path / "still.png").is_file()
+    calls = []
+    monkeypatch.setattr(SplatRenderer, "render", lambda *a, **k: calls.append(1))
+    assert main(["render", str(ckpt), "--out", "frame_%04d.png", "--frames", "3", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("splat4d render: error: frame_%04d.png holds one image, not 3 frames") and "\n" not in err
+    assert not calls and not list(tmp_path.glob("*frame*"))  # refused before drawing anything
+    from splat4d.viewer.headless import render_to_file
+    from splat4d.viewer.output import OutputError
+    cams = [orbit(20, a, 2.0, 40, 40, 30) for a in (0, 10)]
+    with pytest.raises(OutputError, match="^two.png: a single image takes one frame, not 2"):
+        render_to_file(None, "two.png", cams, [0.5, 0.5])
+    assert not calls and not (tmp_path / "two.png").exists()
+
+
 def test_missing_and_corrupt_checkpoints(tmp_path, capsys):
     assert main(["render", str(tmp_path / "nope.safetensors"), "--out", str(tmp_path / "a.png")]) == 1
     assert "no such file" in capsys.readouterr().err

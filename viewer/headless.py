@@ -69,7 +69,8 @@ def render_to_file(model, out: str | os.PathLike, cameras: Sequence[Camera], tim
         raise CameraError(f"all frames must have one size, got {sorted(sizes)}")
     (width, height), = sizes
     summary = RenderSummary()
-    with open_output(out, width, height, fps, settings.transparent, image_format, force, crf) as writer:
+    with open_output(out, width, height, fps, settings.transparent, image_format, force, crf,
+                     frames=len(cameras)) as writer:
         for rgba in render_frames(model, cameras, times, settings, summary=summary, progress=progress):
             writer.write(rgba)
     return summary

@@ -127,14 +127,15 @@ class SequenceWriter:
 
 
 class SingleImageWriter:
-    """Exactly one frame to one image file."""
+    """Exactly one frame to one image file (`path`, possibly a temporary name for `name`)."""
 
-    def __init__(self, path: Path, alpha: bool) -> None:
+    def __init__(self, path: Path, alpha: bool, name: str | os.PathLike | None = None) -> None:
         self.path, self.alpha, self.count = path, alpha, 0
+        self.name = path if name is None else name
 
     def write(self, rgba: np.ndarray) -> None:
         if self.count:
-            raise OutputError(f"{self.path}: a single image takes one frame; use a folder for a sequence")
+            raise OutputError(f"{self.name}: a single image takes one frame; use a folder for a sequence")
         write_image(self.path, rgba, self.alpha)
         self.count += 1
 
@@ -156,16 +157,19 @@ def output_kind(out: str | os.PathLike) -> str:
 
 @contextlib.contextmanager
 def open_output(out: str | os.PathLike, width: int, height: int, fps: float, transparent: bool = False,
-                image_format: str = "png", force: bool = False, crf: int = 18) -> Iterator:
+                image_format: str = "png", force: bool = False, crf: int = 18, frames: int | None = None) -> Iterator:
     """Yield a writer with ``write(rgba)`` for `out`; the output appears (atomically) only if the block succeeds.
 
     Args:
         out: ``.mp4`` video, ``.png`` / ``.exr`` single image, or a folder name for a frame sequence.
         transparent: frames have a transparent background (PNG keeps alpha; mp4 refuses).
         image_format: "png" or "exr", for sequences.
+        frames: how many frames will come, if known: a single image refuses more than one before any is drawn.
     """
     kind = output_kind(out)
     path = Path(out)
+    if kind == "image" and frames is not None and frames > 1:
+        raise OutputError(f"{out}: a single image takes one frame, not {frames}; use a folder for a sequence")
     if kind == "video":
         if transparent:
             raise OutputError(f"{out}: H.264 video has no alpha channel; write PNG or EXR frames for a "
@@ -180,7 +184,7 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
                 writer.close()
     elif kind == "image":
         with atomic_path(path, force) as tmp:
-            writer = SingleImageWriter(tmp, transparent)
+            writer = SingleImageWriter(tmp, transparent, out)
             yield writer
     else:
         fmt = image_format.lower().lstrip(".")

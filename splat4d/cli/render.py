@@ -33,7 +33,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="image size in pixels (default 1280x720; even for .mp4)")
     g.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     g.add_argument("--frames", type=int, default=None,
-                   help="number of frames (default: --seconds x --fps, or the whole camera path)")
+                   help="number of frames (default: 1 for a .png/.exr image, else --seconds x --fps, or the whole "
+                        "camera path)")
     g.add_argument("--seconds", type=float, default=4.0, help="video length for orbit/spiral (default 4)")
     g.add_argument("--image-format", choices=("png", "exr"), default="png", help="format of a frame folder")
     g.add_argument("--crf", type=int, default=18, help="H.264 quality, 0 (lossless) .. 51 (default 18)")
@@ -81,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.viewer.camera_path import CameraPath, path_from_dataset
     from splat4d.viewer.headless import render_to_file
     from splat4d.viewer.options import OptionError, parse_background
+    from splat4d.viewer.output import output_kind
     from splat4d.viewer.renderer import RenderSettings
     from splat4d.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
                                            scene_times)
@@ -93,6 +95,11 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("give either --path or --cameras, not both")
     if not 0 < args.fov < 180:
         raise OptionError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+    if output_kind(args.out) == "image":  # checked before any rendering: a still is one frame
+        if args.frames is not None and args.frames > 1:
+            raise OptionError(f"{args.out} holds one image, not {args.frames} frames; give a folder name for "
+                              "numbered frames, or an .mp4")
+        args.frames = 1
     bg, transparent = parse_background(args.background)
     ckpt = load_model(args.checkpoint)
     model = ckpt.model

@@ -217,21 +217,65 @@ def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.
 
 
 def _finish(neg_depth: np.ndarray, boxes: np.ndarray, key: SortKey, start: float) -> SortResult:
-    """Compact the finite keys and argsort them (ascending -depth = back to front)."""
-    idx = np.flatnonzero(np.isfinite(neg_depth)).astype(np.uint32)
-    keys = neg_depth[idx]
-    perm = np.argsort(keys, kind="quicksort")
-    order = idx[perm]
+    """Compact the finite keys and sort them (ascending -depth = back to front; ties in index order)."""
+    order, boxes = _radix_order(neg_depth.view(np.uint32), boxes)
     if order.shape[0]:
-        sorted_depth = -keys[perm]  # far .. near
+        sorted_depth = -neg_depth[order]  # far .. near
         k = sorted_depth.shape[0] - 1
         depth_range = (float(sorted_depth[int(0.98 * k)]), float(sorted_depth[int(0.02 * k)]))
     else:
         depth_range = (NEAR_PLANE, 1.0)
-    boxes = np.take(boxes, order, axis=0)  # 4x faster than boxes[order] for row gathers (55 vs 13 ms at 1M)
     hideable = hideable_fraction(boxes, key.intrinsics[4], key.intrinsics[5])
     return SortResult(order=order, boxes=boxes, depth_range=depth_range, key=key,
                       ms=(time.perf_counter() - start) * 1e3, hideable=hideable)
+
+
+#: Bits per pass of `_radix_order`: three passes cover a 32-bit key (measured faster than four of 8 bits).
+_RADIX_BITS = 11
+
+
+@numba.njit(cache=True, nogil=True)
+def _radix_order(bits, boxes):
+    """(order, boxes[order]): the indices of the finite float32 keys (given as their bits) in ascending key order,
+    ties in index order (a stable LSD radix sort: 3-4x faster than numpy's argsort at 1M keys), and their rows of
+    `boxes` gathered in that order."""
+    n = bits.shape[0]
+    idx = np.empty(n, np.uint32)
+    keys = np.empty(n, np.uint32)
+    m = 0
+    for i in range(n):
+        b = bits[i]
+        if (b & np.uint32(0x7F800000)) != np.uint32(0x7F800000):  # finite: not inf or nan
+            # IEEE order as unsigned order: flip every bit of a negative number, only the sign bit of the others
+            keys[m] = ~b if b & np.uint32(0x80000000) else b | np.uint32(0x80000000)
+            idx[m] = i
+            m += 1
+    keys, idx = keys[:m], idx[:m]
+    keys2, idx2 = np.empty_like(keys), np.empty_like(idx)
+    radix = 1 << _RADIX_BITS
+    mask = np.uint32(radix - 1)
+    for shift in range(0, 32, _RADIX_BITS):
+        count = np.zeros(radix + 1, np.int64)
+        for k in range(m):
+            count[((keys[k] >> np.uint32(shift)) & mask) + 1] += 1
+        if count.max() == m:  # one bucket holds every key: this digit orders nothing
+            continue
+        for d in range(radix):
+            count[d + 1] += count[d]
+        for k in range(m):
+            d = (keys[k] >> np.uint32(shift)) & mask
+            j = count[d]
+            keys2[j] = keys[k]
+            idx2[j] = idx[k]
+            count[d] = j + 1
+        keys, keys2 = keys2, keys
+        idx, idx2 = idx2, idx
+    out = np.empty((m, boxes.shape[1]), boxes.dtype)
+    for k in range(m):
+        i = idx[k]
+        for c in range(boxes.shape[1]):
+            out[k, c] = boxes[i, c]
+    return idx, out
 
 
 def hideable_fraction(boxes: np.ndarray, width: int, height: int) -> float:

@@ -346,9 +346,10 @@ def model_bounds(model: Model, num_times: int = 9, quantile: float = 0.0) -> tup
             pts = g.means[g.visible]
             if pts.shape[0] == 0:
                 continue
-            if quantile > 0.0:
-                q = torch.tensor([quantile, 1.0 - quantile], dtype=pts.dtype, device=pts.device)
-                a, b = torch.quantile(pts, q, dim=0).unbind(0)
+            if quantile > 0.0:  # order statistics (torch.quantile refuses inputs over 16M elements)
+                k = int(quantile * (pts.shape[0] - 1))
+                a = pts.kthvalue(k + 1, dim=0).values
+                b = pts.kthvalue(pts.shape[0] - k, dim=0).values
             else:
                 a, b = pts.min(0).values, pts.max(0).values
             lo = a if lo is None else torch.minimum(lo, a)

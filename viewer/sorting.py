@@ -8,11 +8,11 @@ image. Survivors are argsorted by decreasing depth. Each also gets its screen bo
 computed as splat_preprocess.glsl and the trainer's rasterizer do, and its opacity at t), which the renderer uses to
 skip Gaussians hidden behind pixels that are already opaque and to choose between point and quad splats.
 
-`depth_order` is a fused numba kernel plus numpy's argsort; both release the GIL, so the desktop app sorts in a
-worker thread with the serial kernel (not competing with the rasterizer threads of a software GL), while a caller
-that waits for the order (offline rendering) runs the kernel on all cores; the tests hold it against the trainer's
-projection. `AsyncSorter` runs sorts in a
-thread and always hands back the newest finished order, so drawing never waits for a sort.
+`depth_order` is a fused numba key kernel plus a numba radix sort; both release the GIL, so the desktop app sorts
+in a worker thread with the serial kernel (not competing with the rasterizer threads of a software GL), while a
+caller that waits for the order (offline rendering) runs the key kernel on all cores; the tests hold it against the
+trainer's projection. `AsyncSorter` runs sorts in a thread and always hands back the newest finished order, so
+drawing never waits for a sort.
 """
 
 from __future__ import annotations
@@ -237,8 +237,8 @@ _RADIX_BITS = 11
 @numba.njit(cache=True, nogil=True)
 def _radix_order(bits, boxes):
     """(order, boxes[order]): the indices of the finite float32 keys (given as their bits) in ascending key order,
-    ties in index order (a stable LSD radix sort: 3-4x faster than numpy's argsort at 1M keys), and their rows of
-    `boxes` gathered in that order."""
+    ties in index order (a stable LSD radix sort), and their rows of `boxes` gathered in that order. At 1M keys it
+    took 60-70 ms where numpy's quicksort argsort plus np.take took about 95 ms and its stable argsort 185 ms."""
     n = bits.shape[0]
     idx = np.empty(n, np.uint32)
     keys = np.empty(n, np.uint32)

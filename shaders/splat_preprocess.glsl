@@ -19,7 +19,7 @@
 in vec4 a_mean_t;   // mean xyz at the temporal mean, temporal mean mu_t
 in vec4 a_motion;   // velocity xyz, 1 / (2 Sigma_tt) (0: no temporal fade)
 in vec4 a_cov_a;    // conditional covariance c00 c01 c02 c11
-in vec4 a_cov_b;    // c12 c22, opacity, sqrt(trace) (unused here)
+in vec4 a_cov_b;    // c12 c22, opacity, 0 (padding)
 
 uniform mat3 u_rot;         // world -> camera rotation (OpenCV axes)
 uniform vec3 u_trans;       // world -> camera translation

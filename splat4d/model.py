@@ -185,12 +185,11 @@ class Gaussians4D:
         `sh_degree_t` uses fewer cosine time terms of the colour than the model has (0: none).
         """
         cov3, velocity, var_t = condition_on_time(self.covariance_4d())
-        dt = t - self.t_means
-        marginal = temporal_marginal(t, self.t_means, var_t)
+        means, marginal, dt = self._at_time(t, velocity, var_t)
         degree_t = self.sh_degree_t if sh_degree_t is None else max(0, min(sh_degree_t, self.sh_degree_t))
         coeffs = self.sh_coeffs[:, : sh.num_sh_coeffs(self.sh_degree, degree_t)]
         return Gaussians3D(
-            means=self.means + velocity * dt[:, None],
+            means=means,
             covariances=cov3,
             opacities=self.opacities * marginal,
             sh=sh.collapse_time(coeffs, self.sh_degree, degree_t, -dt, self.duration),
@@ -198,6 +197,21 @@ class Gaussians4D:
             sh_degree=self.sh_degree,
             velocities=velocity,
         )
+
+    def centres(self, times) -> list[tuple[Tensor, Tensor]]:
+        """``(means [N, 3], visible [N])`` of `slice(t)` for each t in `times`, without the covariances and colours
+        (the conditioning is done once): what framing and bounds need, ~10x cheaper than slicing."""
+        _, velocity, var_t = condition_on_time(self.covariance_4d())
+        out = []
+        for t in times:
+            means, marginal, _ = self._at_time(float(t), velocity, var_t)
+            out.append((means, marginal > TEMPORAL_CULL))
+        return out
+
+    def _at_time(self, t: float, velocity: Tensor, var_t: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Conditional means, temporal marginal and t - mu_t at time t (velocity, var_t from condition_on_time)."""
+        dt = t - self.t_means
+        return self.means + velocity * dt[:, None], temporal_marginal(t, self.t_means, var_t), dt
 
     def tensors(self) -> dict[str, Tensor]:
         return {name: getattr(self, name) for name in self.TENSORS}
@@ -290,11 +304,19 @@ class KeyframedGaussians:
         w = (t - float(times[i])) / float(times[i + 1] - times[i])
         return i, i + 1, w
 
+    def centres(self, times) -> list[tuple[Tensor, Tensor]]:
+        """``(means [N, 3], visible [N])`` of `slice(t)` for each t in `times` (see `Gaussians4D.centres`)."""
+        out = []
+        for t in times:
+            i, j, w = self._bracket(float(t))
+            out.append((_lerp(self.means, i, j, w), _lerp(self.opacities, i, j, w) > 0))
+        return out
+
     def slice(self, t: float) -> Gaussians3D:
         i, j, w = self._bracket(t)
 
         def lerp(x: Tensor) -> Tensor:
-            return x[i] if w == 0.0 else x[i] + (x[j] - x[i]) * w
+            return _lerp(x, i, j, w)
 
         quats = self.quats[i] if w == 0.0 else quaternion.slerp(self.quats[i], self.quats[j], w)
         quats = quaternion.normalize(quats)
@@ -325,6 +347,11 @@ class KeyframedGaussians:
 
 
 #: Any model a checkpoint can hold; both have ``slice(t)``, ``time_range``, ``sh_degree`` and ``len()``.
+def _lerp(x: Tensor, i: int, j: int, w: float) -> Tensor:
+    """Keys i and j of `x` (``[F, ...]``) blended with weight w on the second."""
+    return x[i] if w == 0.0 else x[i] + (x[j] - x[i]) * w
+
+
 Model = Union[Gaussians4D, KeyframedGaussians]
 MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians}
 
@@ -341,9 +368,8 @@ def model_bounds(model: Model, num_times: int = 9, quantile: float = 0.0) -> tup
     t0, t1 = model.time_range
     lo, hi = None, None
     with torch.no_grad():
-        for t in torch.linspace(t0, t1, num_times).tolist():
-            g = model.slice(t)
-            pts = g.means[g.visible]
+        for means, visible in model.centres(torch.linspace(t0, t1, num_times).tolist()):
+            pts = means[visible]
             if pts.shape[0] == 0:
                 continue
             if quantile > 0.0:  # order statistics (torch.quantile refuses inputs over 16M elements)

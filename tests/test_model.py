@@ -173,3 +173,21 @@ def test_keyframed_rejects_unsorted_times():
     k = keyframed()
     with pytest.raises(ModelError, match="increasing"):
         KeyframedGaussians(**{**k.tensors(), "times": torch.tensor([0.0, 2.0, 1.0])}, sh_degree=1)
+
+
+def test_centres_are_the_slices_means_and_visibility():
+    """`centres` (what bounds and framing use) skips covariances and colours but must agree with `slice` exactly,
+    for native 4D (including Gaussians culled by the temporal marginal) and keyframed models."""
+    model = random_model(200, "current")
+    times = [-0.5, 0.0, 0.37, 1.0, 2.5]
+    for (means, visible), t in zip(model.centres(times), times):
+        g = model.slice(t)
+        torch.testing.assert_close(means, g.means, rtol=0, atol=0)
+        assert torch.equal(visible, g.visible)
+    assert not model.centres([40.0])[0][1].all()  # far outside: some are culled, so visibility is really tested
+    k = keyframed()
+    k_times = [-1.0, 0.25, 0.5, 0.8, 3.0]
+    for (means, visible), t in zip(k.centres(k_times), k_times):
+        g = k.slice(t)
+        torch.testing.assert_close(means, g.means, rtol=0, atol=0)
+        assert torch.equal(visible, g.visible)

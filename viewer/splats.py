@@ -10,7 +10,7 @@ Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coeffic
 
     mean_t  [N, 4]  mean xyz (at the temporal mean), temporal mean mu_t
     motion  [N, 4]  velocity xyz (d mean / dt), 1 / (2 Sigma_tt)  (0: no temporal fade, e.g. a keyframed slice)
-    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), largest std-dev
+    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), 0 (pads a whole vec4)
     sh      [N, S]  the M x 3 colour coefficients flattened coefficient-major (r g b of coefficient 0, then 1, ...)
                     and zero-padded to S = 4 * ceil(3 M / 4) floats (whole RGBA texels)
 """
@@ -92,15 +92,12 @@ def _pack_sh(coeffs: torch.Tensor) -> np.ndarray:
 
 
 def _pack_cov(cov3: torch.Tensor, opacity: torch.Tensor) -> np.ndarray:
-    """``[N, 3, 3]`` covariances + ``[N]`` opacities -> ``[N, 8]`` (upper triangle, opacity, largest std-dev)."""
+    """``[N, 3, 3]`` covariances + ``[N]`` opacities -> ``[N, 8]`` (upper triangle, opacity, 0)."""
     n = cov3.shape[0]
-    out = np.empty((n, 8), np.float32)
+    out = np.zeros((n, 8), np.float32)
     for k, (i, j) in enumerate(_COV_TRIU):
         out[:, k] = _np32(cov3[:, i, j])
     out[:, 6] = _np32(opacity)
-    # the largest std-dev bounds the footprint (CPU culling); rounded up so float32 never undershoots
-    top = torch.linalg.eigvalsh(cov3.double())[:, -1].clamp_min(0).sqrt() * (1.0 + 1e-5)
-    out[:, 7] = _np32(top)
     return out
 
 

@@ -1,12 +1,16 @@
 #version 330 core
 // The full-screen passes of the splat renderer, one program per SCREEN_PASS (a define set by the renderer), all
-// drawn as a single triangle covering the target with pixels mapped 1:1 (texelFetch at gl_FragCoord):
+// drawn as a single triangle covering the target:
 //
 // SCREEN_RESOLVE (0): turns the premultiplied accumulation of splat_draw.glsl (rgb = sum c a T, alpha = 1 - T)
-//     into the displayed image, composited over a premultiplied background u_background = (rgb * a, a): a = 0
+//     into the displayed image, stretched over the viewport u_viewport (x, y, w, h): 1:1 when the image has the
+//     viewport's size (nearest filtering, exactly the image's pixels), smoothly upscaled when the app draws at a
+//     lower resolution (linear filtering of the premultiplied values, which is correct for premultiplied colour);
+//     composited over a premultiplied background u_background = (rgb * a, a): a = 0
 //     keeps a transparent background (premultiplied colour + alpha, ready for EXR/PNG export), a = 1 gives
 //     C + T * bg. u_mode: 0 colour, 1 depth (expected depth / alpha through the Turbo colour map over
 //     u_depth_range), 2 alpha (grey, opaque), 3 outlines and 4 centres (as colour).
+// The other two passes map pixels 1:1 (texelFetch at gl_FragCoord).
 // SCREEN_MASK (1): front-to-back early stop between batches of splats: depth 0 (the triangle's depth) wherever
 //     the accumulated alpha has reached 1 - TRANSMITTANCE_THRESHOLD (the reference rasterizer stops a pixel
 //     there), so the depth test (LESS, splats at depth 0.5) rejects every later fragment of that pixel before its
@@ -35,7 +39,7 @@ uniform sampler2D u_accum;
 uniform vec4 u_background;   // premultiplied background colour
 uniform int u_mode;
 uniform vec2 u_depth_range;  // near, far depth mapped to the ends of the colour map
-uniform ivec2 u_offset;      // lower-left corner of the viewport in the target
+uniform vec4 u_viewport;     // x, y (lower-left corner), width, height of the viewport in the target
 
 out vec4 f_color;
 
@@ -55,7 +59,7 @@ vec3 turbo(float x) {
 }
 
 void main() {
-    vec4 acc = texelFetch(u_accum, ivec2(gl_FragCoord.xy) - u_offset, 0);
+    vec4 acc = texture(u_accum, (gl_FragCoord.xy - u_viewport.xy) / u_viewport.zw);
     float alpha = acc.a;
     if (u_mode == 2) {
         f_color = vec4(vec3(alpha), 1.0);

@@ -88,10 +88,12 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
     root, model, ckpt = files
     shot, report_path = root / "shot.png", root / "report.json"
     proc = run_view(display, str(ckpt), "--size", "200x150", "--exit-after", "12", "--screenshot", str(shot),
-                    "--report", str(report_path), "--cameras", str(root), "--path", str(root / "path.json"))
+                    "--report", str(report_path), "--cameras", str(root), "--path", str(root / "path.json"),
+                    "--render-scale", "0.5")
     assert proc.returncode == 0, proc.stderr
     report = json.loads(report_path.read_text())
     assert report["frames"] == 12
+    assert report["resolutions"] == [0.5, 1.0]  # frames at half resolution, the screenshot at full
     assert report["time_end"] != report["time_start"]  # time played
     assert report["sorts"] >= 1
     img = read_shot(shot)
@@ -110,6 +112,7 @@ def test_app_opens_the_bundled_sample_paused_in_depth_view_and_needs_a_display(d
     assert proc.returncode == 0, proc.stderr
     report = json.loads(report_path.read_text())
     assert report["time_start"] == report["time_end"] == 0.25
+    assert report["resolutions"] == [1.0]  # the view did not move: full resolution
     assert read_shot(shot).std() > 0.05  # the spinner is in view
     assert psnr(read_shot(shot), headless_of(report, model)) >= 40.0
     # an existing screenshot is not overwritten, and no display is a one-line error

@@ -58,3 +58,47 @@ def test_playback_loops_stops_and_pauses():
     assert p.advance(1.0) == 2.0
     p.set_range((0.0, 1.0))
     assert p.time == 1.0
+
+
+def test_resolution_drops_while_moving_to_fit_the_budget_and_is_sharp_at_rest():
+    from splat4d.viewer.controls import RESOLUTION_STEPS, Resolution, scaled_size
+
+    r = Resolution(budget_ms=40.0)
+    assert r.choose(True, 1280, 720) == 1.0  # nothing measured yet
+    r.observe(160.0, 1.0)  # a full frame took 160 ms: by pixels, half the width and height fits 40 ms
+    assert r.choose(False, 1280, 720) == 1.0  # at rest: full resolution
+    assert r.choose(True, 1280, 720) == 0.5
+    r.observe(60.0, 0.5)  # but half took 60 ms (per-splat costs do not shrink with the pixels)
+    assert r.choose(True, 1280, 720) == 0.375
+    r.observe(50.0, 0.375)  # and 0.375 50 ms: the budget is out of reach; 0.25 is predicted at 22 ms ...
+    assert r.choose(True, 1280, 720) == 0.25
+    r.observe(45.0, 0.25)  # ... but takes 45: take the sharpest step within 25% of the fastest, not the smallest
+    assert r.choose(True, 1280, 720) == 0.375
+    assert r.choose(True, 1280, 720) == 0.375  # and stay there
+    # a view 10x cheaper (measured at the current step): the other steps are expected to follow, so up it goes
+    for _ in range(10):
+        r.observe(5.0, 0.375)
+    assert r.choose(True, 1280, 720) == 1.0
+    # a view 4x dearer at full size: to unmeasured steps only with margin
+    r = Resolution(budget_ms=40.0)
+    r.observe(160.0, 1.0)
+    assert r.choose(True, 1280, 720) == 0.5
+    r.observe(36.0, 0.5)  # measured: fits, stays
+    assert r.choose(True, 1280, 720) == 0.5
+    r.observe(20.0, 0.5)  # average 29.6 ms: 0.625 is predicted at 46 ms (by pixels from 0.5), over budget
+    assert r.choose(True, 1280, 720) == 0.5
+    # another window size forgets the measurements and keeps the step until it has measured one
+    assert r.choose(True, 800, 600) == 0.5
+    # the user's scale caps it, and with adaptivity off only the user's scale is used
+    r = Resolution(scale=0.5)
+    r.observe(1000.0, 0.5)
+    assert r.choose(False, 1280, 720) == 0.5 and r.choose(True, 1280, 720) == RESOLUTION_STEPS[0]
+    r.adaptive = False
+    assert r.choose(True, 1280, 720) == 0.5
+    # measurements expire
+    r = Resolution(memory=5)
+    r.observe(500.0, 1.0)
+    for _ in range(5):
+        r.observe(1.0, 0.25)
+    assert r.predicted_ms(1.0) == (pytest.approx(16.0), False)  # from the fresh 0.25 step, not the old 500 ms
+    assert scaled_size(1280, 720, 0.375) == (480, 270) and scaled_size(3, 3, 0.25) == (1, 1)

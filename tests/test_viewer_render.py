@@ -226,3 +226,68 @@ def test_renderer_leaves_another_current_gl_context_alone(model):
         assert px.tolist() == [int(255 * c) for c in color]
     np.testing.assert_array_equal(img, first)
     other.release()
+
+
+def test_a_lower_resolution_frame_is_stretched_over_the_viewport(model):
+    """The app draws fewer pixels while the view moves: an image rendered at half size into a full-size viewport is
+    the half-size image upscaled (bilinear), close to the full-size image, and covers the whole viewport."""
+    full_cam = orbit(20, 30, 1.6, fov_deg=45, width=96, height=64)
+    half_cam = full_cam.resized(48, 32)
+    settings = RenderSettings(background=(1.0, 1.0, 1.0))
+    ctx = headless_context()
+    r = SplatRenderer(ctx, model)
+    with ctx:  # our own GL calls need the viewer's context current (the renderer's methods make it so)
+        tex = ctx.texture((96, 64), 4, dtype="f4")
+        fbo = ctx.framebuffer([tex])
+
+    def read_target() -> np.ndarray:
+        with ctx:
+            return np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(64, 96, 4)[::-1, :, :3]
+
+    try:
+        r.render(full_cam, 0.5, settings)
+        full = r.read_display()[..., :3]
+        r.render(half_cam, 0.5, settings)
+        half = r.read_display()[..., :3]
+        r.render(half_cam, 0.5, settings, target=fbo, viewport=(0, 0, 96, 64))
+        stretched = read_target()
+        r.render(full_cam, 0.5, settings, target=fbo, viewport=(0, 0, 96, 64))
+        same = read_target()
+    finally:
+        with ctx:
+            fbo.release()
+            tex.release()
+        r.release()
+    np.testing.assert_array_equal(same, full)  # at equal sizes the viewport shows the image's own pixels
+    upscaled = cv2.resize(half, (96, 64), interpolation=cv2.INTER_LINEAR)
+    # bilinear like cv2, to float rounding and GL's 8-bit filter weights; edges clamp the same way
+    assert np.abs(stretched - upscaled).max() < 0.005
+    mse = float(np.mean((stretched - full) ** 2))
+    assert 0.0 < mse and 10 * math.log10(1.0 / mse) > 20.0  # blurrier, but the same picture
+    assert (full < 0.9).any(axis=-1).mean() > 0.05  # and there is a picture
+
+
+def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model):
+    """While the app changes resolution it draws with an order sorted for the previous size: its boxes, mapped to
+    the new size, must still contain every pixel each Gaussian reaches (else points would clip and hidden-tile
+    skipping would drop visible Gaussians)."""
+    from splat4d.viewer.renderer import _boxes_for
+    from splat4d.viewer.splats import to_arrays
+    from splat4d.viewer.sorting import depth_order
+
+    arrays = to_arrays(model)
+    full_cam = orbit(20, 30, 1.6, fov_deg=45, width=120, height=80)
+    for other in (full_cam.resized(30, 20), full_cam.resized(60, 40), full_cam.resized(240, 160)):
+        truth = depth_order(arrays, full_cam, 0.5)
+        mapped_order = depth_order(arrays, other, 0.5)
+        mapped = _boxes_for(mapped_order, full_cam)
+        # compare the Gaussians both orders keep, by index
+        common, a, b = np.intersect1d(truth.order, mapped_order.order, return_indices=True)
+        assert len(common) > 0.9 * truth.visible
+        t, m = truth.boxes[a], mapped[b]
+        assert np.all(m[:, 0] - m[:, 2] <= t[:, 0] - t[:, 2] + 1e-3)
+        assert np.all(m[:, 0] + m[:, 2] >= t[:, 0] + t[:, 2] - 1e-3)
+        assert np.all(m[:, 1] - m[:, 3] <= t[:, 1] - t[:, 3] + 1e-3)
+        assert np.all(m[:, 1] + m[:, 3] >= t[:, 1] + t[:, 3] - 1e-3)
+        assert np.median(m[:, 2] / t[:, 2]) < 2.5  # conservative, not absurdly so
+    assert _boxes_for(truth, full_cam) is truth.boxes

@@ -8,6 +8,9 @@ file on the window (or type its path in the panel) to open it.
 Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the newest finished back-to-front order
 and a new sort is requested whenever the camera, the time or the splat scale changed, so the UI never waits for a
 sort. Screenshots are the exception: they wait for the order of their exact view.
+
+While the view moves, frames are drawn at a lower resolution when the full one would not fit the frame budget
+(`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always full resolution.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from splat4d.errors import GLError, Splat4DError
 from splat4d.fileio import atomic_path
 
 from .camera_path import CameraKey, CameraPath, dataset_views
-from .controls import CameraController, Playback
+from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult
@@ -52,6 +55,11 @@ class AppOptions:
     camera_path: str | None = None
     screenshot_dir: str = "."
     vsync: bool = True
+    #: share of the window's pixels drawn per axis at rest (`Resolution.scale`) ...
+    render_scale: float = 1.0
+    #: ... and whether to draw fewer while the view moves, to keep frames within `frame_budget_ms`
+    adaptive_resolution: bool = True
+    frame_budget_ms: float = 40.0
     #: automation (tests, scripted captures): stop after this many frames ...
     exit_after: int | None = None
     #: ... and save a screenshot of the last frame here, and a JSON report here
@@ -66,6 +74,8 @@ class _Stats:
 
     frame: FrameStats = field(default_factory=FrameStats)
     frame_ms: float = 0.0
+    scale: float = 1.0
+    moving: bool = False
     sort_ms: float = 0.0
     sorts: int = 0
 
@@ -106,6 +116,9 @@ class ViewerApp:
         self._generation = 0
         self._order: SortResult | None = None
         self._requested: tuple | None = None
+        o = self.options
+        self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms)
+        self._last_pose: tuple | None = None
 
     # --- set-up -------------------------------------------------------------------------------------------------
     def _init_window(self) -> None:
@@ -230,7 +243,8 @@ class ViewerApp:
                 if final:
                     break
             self.report.update(frames=frames, time_end=self.playback.time, sorts=self._stats.sorts,
-                               seconds=time.time() - self.report["started"])
+                               seconds=time.time() - self.report["started"],
+                               resolutions=sorted(self.report.get("resolutions", ())))
         finally:
             self._shutdown()
         if self.options.report:
@@ -296,6 +310,12 @@ class ViewerApp:
         if width <= 0 or height <= 0:  # minimised
             return
         camera, t = self._current_view(width, height)
+        screenshot = self._screenshot_request
+        pose = (np.asarray(camera.w2c).tobytes(), camera.fx, camera.fy, camera.cx, camera.cy)
+        moving, self._last_pose = pose != self._last_pose and self._last_pose is not None, pose
+        scale = 1.0 if screenshot else self.resolution.choose(moving, width, height)
+        if scale != 1.0:
+            camera = camera.resized(*scaled_size(width, height, scale))
         s = self.settings
         splats = self.renderer.splats_at(t)
         key = SortKey.of(camera, t, s.splat_scale)
@@ -303,7 +323,6 @@ class ViewerApp:
             self.sorter.request(splats, camera, t, s.splat_scale, tag=self._generation)
             self._requested = (self._generation, key)
         self._take_sort_result(self.sorter.poll())
-        screenshot = self._screenshot_request
         if self._order is None or screenshot:  # first frame of a model, or a screenshot: wait for this view
             self._take_sort_result(self.sorter.wait())
         if self._order is None:
@@ -311,8 +330,10 @@ class ViewerApp:
         stats = self.renderer.render(camera, t, s, order=self._order, target=self.ctx.screen,
                                      viewport=(0, 0, width, height), sync=True)
         glfw.make_context_current(self._window)  # the panel draws next, with the window's context
+        self.resolution.observe(stats.draw_ms + stats.upload_ms, scale)
         st = self._stats
-        st.frame = stats
+        st.frame, st.scale, st.moving = stats, scale, moving
+        self.report.setdefault("resolutions", set()).add(scale)
         if screenshot:
             self._screenshot_request = None
             self._save_screenshot(screenshot, camera, t, width, height)
@@ -402,6 +423,7 @@ class ViewerApp:
         imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
         imgui.text(f"sort {st.sort_ms:5.1f} ms  draw {st.frame.draw_ms + st.frame.upload_ms:5.1f} ms")
         imgui.text(f"visible {st.frame.visible:,} / {st.frame.total:,} Gaussians")
+        imgui.text(f"resolution {100 * st.scale:3.0f}%" + ("  (moving)" if st.moving and st.scale < 1 else ""))
 
         imgui.separator_text("Time")
         t0, t1 = pb.time_range
@@ -443,6 +465,11 @@ class ViewerApp:
         s.background = tuple(float(x) for x in bg)
         _, comp = imgui.combo("blending", COMPOSITE_ORDERS.index(s.composite), list(COMPOSITE_ORDERS))
         s.composite = COMPOSITE_ORDERS[comp]
+        res = self.resolution
+        _, res.scale = imgui.slider_float("resolution", res.scale, 0.25, 1.0, "%.2f")
+        _, res.adaptive = imgui.checkbox("lower while moving", res.adaptive)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip(f"draw fewer pixels while the view moves, to keep frames under {res.budget_ms:.0f} ms")
         if imgui.button("Screenshot (P)"):
             self._screenshot_request = self._next_screenshot_name()
 

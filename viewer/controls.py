@@ -7,6 +7,9 @@ around the eye. Snapping to a dataset camera shows that exact pose (roll and int
 next interaction.
 
 `Playback` is the one timeline the app uses: play/pause, speed, loop or stop at the end of the time range.
+
+`Resolution` picks the share of the window's pixels the app renders: a fixed scale at rest, and while the view
+moves a lower one that keeps frames within a time budget (a software rasterizer pays per pixel).
 """
 
 from __future__ import annotations
@@ -163,3 +166,89 @@ class Playback:
     def set_range(self, time_range: tuple[float, float]) -> None:
         self.time_range = (float(time_range[0]), float(time_range[1]))
         self.time = min(max(self.time, self.time_range[0]), self.time_range[1])
+
+
+#: The resolutions `Resolution` chooses between, as a share of the window's width and height: steps of 1/8, so that
+#: the render targets are re-made only when the step changes.
+RESOLUTION_STEPS: tuple[float, ...] = tuple(k / 8 for k in range(2, 9))
+
+
+@dataclass
+class Resolution:
+    """Render resolution of the app, as a share of the window's pixels per axis.
+
+    At rest the app draws at `scale` (1 = every window pixel). While the view moves and `adaptive` is on, it draws
+    at the largest of `RESOLUTION_STEPS` (at most `scale`) whose predicted draw time fits `budget_ms`, and the image
+    is stretched to the window; the first frame at rest is sharp again.
+
+    Predictions come from what each step measured lately (a running average, and when the current step gets
+    cheaper or dearer the other steps' averages follow in proportion; measurements older than `memory` frames, or
+    of another window size, are forgotten); a step not measured yet is predicted from the nearest measured one in
+    proportion to pixels. Draw time is not all per pixel (on llvmpipe each splat also costs about
+    a microsecond to set up), so when no step fits the budget the app takes the largest step within 25% of the
+    fastest rather than the smallest one. It moves up to an unmeasured step only with 20% to spare, so it does not
+    flicker between two steps.
+    """
+
+    scale: float = 1.0
+    adaptive: bool = True
+    budget_ms: float = 40.0
+    memory: int = 120
+    _measured: dict = field(default_factory=dict)  # step -> (running average of draw ms, frame number)
+    _frame: int = 0
+    _window: tuple = (0, 0)
+    _current: float = 1.0
+
+    @staticmethod
+    def step_of(scale: float) -> float:
+        """The step of `RESOLUTION_STEPS` nearest to `scale`."""
+        return min(RESOLUTION_STEPS, key=lambda s: abs(s - scale))
+
+    def observe(self, draw_ms: float, scale: float) -> None:
+        """Record what a frame drawn at `scale` of the window cost."""
+        if not (math.isfinite(draw_ms) and draw_ms >= 0):
+            return
+        self._frame += 1
+        step = self.step_of(scale)
+        previous = self._measured.get(step)
+        ms = draw_ms if previous is None else 0.6 * previous[0] + 0.4 * draw_ms
+        if previous is not None and previous[0] > 0:
+            # the view got cheaper or dearer: assume the other steps did too, in proportion
+            change = ms / previous[0]
+            self._measured = {k: (v * change, seen) for k, (v, seen) in self._measured.items()}
+        self._measured[step] = (ms, self._frame)
+
+    def predicted_ms(self, step: float) -> tuple[float, bool] | None:
+        """(predicted draw ms at `step`, whether it was measured there) or None with nothing measured."""
+        fresh = {k: ms for k, (ms, seen) in self._measured.items() if self._frame - seen < self.memory}
+        if step in fresh:
+            return fresh[step], True
+        if not fresh:
+            return None
+        nearest = min(fresh, key=lambda k: abs(k - step))
+        return fresh[nearest] * (step / nearest) ** 2, False
+
+    def choose(self, moving: bool, width: int, height: int) -> float:
+        """The scale of the next frame in a window of `width` x `height` pixels."""
+        top = self.step_of(max(RESOLUTION_STEPS[0], min(1.0, float(self.scale))))
+        if (width, height) != self._window:
+            if self._window != (0, 0):  # measured in another window size
+                self._measured.clear()
+            self._window = (width, height)
+        if not (moving and self.adaptive):
+            self._current = top
+            return top
+        steps = [s for s in RESOLUTION_STEPS if s <= top]
+        predictions = {s: self.predicted_ms(s) for s in steps}
+        if any(p is None for p in predictions.values()):
+            return self._current if self._current <= top else top
+        limit = max(self.budget_ms, 1.25 * min(ms for ms, _ in predictions.values()))
+        fitting = [s for s, (ms, measured) in predictions.items()
+                   if ms <= (limit if (measured or s <= self._current) else 0.8 * limit)]
+        self._current = max(fitting) if fitting else steps[0]
+        return self._current
+
+
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    """The image size drawn at `scale` of a `width` x `height` window (at least 1 x 1)."""
+    return max(1, round(width * scale)), max(1, round(height * scale))

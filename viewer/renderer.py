@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import TILE_SIZE
+from splat4d.constants import ALPHA_THRESHOLD, EPS2D, TILE_SIZE
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -320,6 +320,7 @@ class SplatRenderer:
         ctx = self.ctx
         accum = ctx.texture(size, 4, dtype="f4")
         accum.filter = (0x2600, 0x2600)
+        accum.repeat_x = accum.repeat_y = False  # a stretched resolve must not blend in the opposite edge
         depth = ctx.depth_renderbuffer(size)
         display = ctx.texture(size, 4, dtype="f4")
         tiles = ctx.texture((-(-size[0] // _OCCLUSION_TILE), -(-size[1] // _OCCLUSION_TILE)), 1, dtype="f1")
@@ -338,7 +339,9 @@ class SplatRenderer:
                 (or reuses the order of the same view).
             target: framebuffer for the resolved image (e.g. ``ctx.screen``); None = the offscreen display
                 texture read by `read_display`.
-            viewport: (x, y, w, h) in `target`; default the whole camera image.
+            viewport: (x, y, w, h) in `target`; default the whole camera image. A viewport of another size than
+                the camera's image stretches the image over it (linear filtering): the desktop app draws at a lower
+                resolution while the view moves.
             sync: wait for the GPU so that ``draw_ms`` is the real cost.
         """
         settings = settings or RenderSettings()
@@ -375,8 +378,11 @@ class SplatRenderer:
         Neither changes the image: such Gaussians could only add to pixels that no longer change."""
         ctx = self.ctx
         front_to_back = settings.composite == "front-to-back"
+        # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
+        stale = order.key != SortKey.of(camera, t, settings.splat_scale)
+        boxes = _boxes_for(order, camera) if stale else order.boxes
         indices = order.order[::-1] if front_to_back else order.order
-        boxes = order.boxes[::-1] if front_to_back else order.boxes
+        boxes = boxes[::-1] if front_to_back else boxes
         self._set_pre_uniforms(camera, t, settings, splats)
         for prog in self._splat_progs.values():
             _set_uniforms(prog, u_size=(camera.width, camera.height), u_height=camera.height,
@@ -387,8 +393,6 @@ class SplatRenderer:
         staged = front_to_back and settings.mode in _POINT_MODES and \
             order.hideable >= _MIN_HIDEABLE
         stages = _stages(len(indices)) if staged else [(0, len(indices))]
-        # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
-        stale = order.key != SortKey.of(camera, t, settings.splat_scale)
         ctx.blend_equation = ctx.FUNC_ADD
         ctx.depth_func = "<"
         saturated, drawn = None, 0
@@ -538,8 +542,10 @@ class SplatRenderer:
         fbo.viewport = viewport
         self.ctx.disable(self.ctx.BLEND)
         tg.accum_tex.use(0)
+        # nearest 1:1 (the exact image), linear when stretched over a larger or smaller viewport (splat_screen.glsl)
+        tg.accum_tex.filter = (0x2600, 0x2600) if tuple(viewport[2:]) == tg.size else (0x2601, 0x2601)
         bg_alpha = 0.0 if settings.transparent else 1.0
-        _set_uniforms(self._resolve_prog, u_accum=0, u_offset=viewport[:2], u_mode=RENDER_MODES.index(settings.mode),
+        _set_uniforms(self._resolve_prog, u_accum=0, u_viewport=viewport, u_mode=RENDER_MODES.index(settings.mode),
                       u_background=tuple(float(c) * bg_alpha for c in settings.background) + (bg_alpha,),
                       u_depth_range=depth_range)
         self._resolve_vao.render(self.ctx.TRIANGLES, vertices=3)
@@ -568,6 +574,28 @@ class SplatRenderer:
         if self._targets is not None:
             self._targets.release()
             self._targets = None
+
+
+def _boxes_for(order: SortResult, camera: Camera) -> np.ndarray:
+    """The screen boxes of `order` (`SortResult.boxes`) in the pixels of `camera`'s image when the order was sorted
+    for an image of another resolution (the app lowers it while the view moves): centres map through the two
+    cameras' intrinsics; a half-size h = sqrt(rr (s^2 + EPS2D)) + 1 px (`sorting._depth_key`, s the footprint's
+    std-dev in pixels) becomes at most k (h - 1) + 1 + sqrt(rr EPS2D (1 - k^2)) when s scales by k (the EPS2D blur
+    does not scale; rr <= 2 ln(1 / ALPHA_THRESHOLD)); areas and masses scale with kx ky. Same-size orders are
+    returned as they are."""
+    key = order.key
+    if key is None or key.intrinsics[4:] == (camera.width, camera.height):
+        return order.boxes
+    fx, fy, cx, cy = key.intrinsics[:4]
+    kx, ky = camera.fx / fx, camera.fy / fy
+    rr_eps = 2.0 * math.log(1.0 / ALPHA_THRESHOLD) * EPS2D
+    b = order.boxes.copy()
+    b[:, 0] = (b[:, 0] - cx) * kx + camera.cx
+    b[:, 1] = (b[:, 1] - cy) * ky + camera.cy
+    b[:, 2] = (b[:, 2] - 1.0) * kx + 1.0 + math.sqrt(rr_eps * max(0.0, 1.0 - kx * kx))
+    b[:, 3] = (b[:, 3] - 1.0) * ky + 1.0 + math.sqrt(rr_eps * max(0.0, 1.0 - ky * ky))
+    b[:, 4:6] *= kx * ky
+    return b
 
 
 def _stages(count: int) -> list[tuple[int, int]]:

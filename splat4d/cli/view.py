@@ -46,6 +46,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--path", metavar="JSON", help="camera path to load (play it from the panel)")
     p.add_argument("--screenshot-dir", default=".", help="folder for screenshots taken with P (default .)")
     p.add_argument("--no-vsync", action="store_true", help="draw as fast as possible")
+    p.add_argument("--render-scale", type=float, default=1.0, metavar="S",
+                   help="draw S x the window's width and height (0.25-1, default 1) and stretch the image to the "
+                        "window: faster on a CPU")
+    p.add_argument("--no-adaptive-resolution", action="store_true",
+                   help="keep the full resolution while the view moves (by default fewer pixels are drawn while "
+                        "moving when a frame would take over 40 ms)")
     a = p.add_argument_group("automation (scripted captures, tests)")
     a.add_argument("--exit-after", type=int, default=None, metavar="FRAMES", help="close after this many frames")
     a.add_argument("--screenshot", metavar="PNG", help="with --exit-after: save the last frame here")
@@ -70,12 +76,15 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--exit-after must be at least 1, got {args.exit_after}")
     if args.screenshot:
         check_writable(args.screenshot, args.force)
+    if not 0.25 <= args.render_scale <= 1.0:
+        raise OptionError(f"--render-scale must be between 0.25 and 1, got {args.render_scale}")
     look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                           composite=args.composite, background=bg or (0.0, 0.0, 0.0))
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, screenshot_dir=args.screenshot_dir,
-                         vsync=not args.no_vsync, exit_after=args.exit_after, screenshot=args.screenshot,
+                         vsync=not args.no_vsync, render_scale=args.render_scale,
+                         adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after, screenshot=args.screenshot,
                          report=args.report, force=args.force)
     # fail with a one-line error before opening a window
     if args.path:

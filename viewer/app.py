@@ -466,7 +466,9 @@ class ViewerApp:
         _, comp = imgui.combo("blending", COMPOSITE_ORDERS.index(s.composite), list(COMPOSITE_ORDERS))
         s.composite = COMPOSITE_ORDERS[comp]
         res = self.resolution
-        _, res.scale = imgui.slider_float("resolution", res.scale, 0.25, 1.0, "%.2f")
+        changed, eighths = imgui.slider_int("resolution", round(8 * res.step_of(res.scale)), 2, 8, "%d/8")
+        if changed:
+            res.scale = eighths / 8
         _, res.adaptive = imgui.checkbox("lower while moving", res.adaptive)
         if imgui.is_item_hovered():
             imgui.set_tooltip(f"draw fewer pixels while the view moves, to keep frames under {res.budget_ms:.0f} ms")

@@ -47,8 +47,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--screenshot-dir", default=".", help="folder for screenshots taken with P (default .)")
     p.add_argument("--no-vsync", action="store_true", help="draw as fast as possible")
     p.add_argument("--render-scale", type=float, default=1.0, metavar="S",
-                   help="draw S x the window's width and height (0.25-1, default 1) and stretch the image to the "
-                        "window: faster on a CPU")
+                   help="draw S x the window's width and height (0.25-1 in steps of 1/8, default 1) and stretch "
+                        "the image to the window: faster on a CPU")
     p.add_argument("--no-adaptive-resolution", action="store_true",
                    help="keep the full resolution while the view moves (by default fewer pixels are drawn while "
                         "moving when a frame would take over 40 ms)")
@@ -78,6 +78,9 @@ def run(args: argparse.Namespace) -> int:
         check_writable(args.screenshot, args.force)
     if not 0.25 <= args.render_scale <= 1.0:
         raise OptionError(f"--render-scale must be between 0.25 and 1, got {args.render_scale}")
+    if abs(8 * args.render_scale - round(8 * args.render_scale)) > 1e-6:
+        raise OptionError(f"--render-scale must be a multiple of 1/8 (0.25, 0.375, 0.5, ... 1), got "
+                          f"{args.render_scale}")
     look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                           composite=args.composite, background=bg or (0.0, 0.0, 0.0))
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,

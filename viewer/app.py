@@ -31,6 +31,8 @@ from splat4d.fileio import atomic_path
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
+from .overlay import (DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, LineRenderer, frustum_segments,
+                      path_segments)
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult
 from .trajectory import frame_model
@@ -88,6 +90,7 @@ class _PathEditor:
     playing: bool = False
     time: float = 0.0
     overwrite: bool = False
+    show: bool = True
 
 
 def camera_to_json(camera) -> dict:
@@ -113,6 +116,7 @@ class ViewerApp:
         self._path = _PathEditor()
         self._views = []
         self._view_index = 0
+        self._show_cameras = True
         self._generation = 0
         self._order: SortResult | None = None
         self._requested: tuple | None = None
@@ -157,6 +161,7 @@ class ViewerApp:
         if not (imgui.backends.glfw_init_for_opengl(addr, True) and imgui.backends.opengl3_init("#version 330")):
             raise GLError("could not initialise the Dear ImGui glfw/OpenGL3 backends")
         self.renderer = SplatRenderer(self.ctx)
+        self.overlay = LineRenderer(self.ctx)
         self.sorter = AsyncSorter()
 
     def _on_drop(self, _window, paths) -> None:
@@ -261,6 +266,8 @@ class ViewerApp:
         if self._window is not None:
             if getattr(self, "renderer", None) is not None:
                 self.renderer.release()
+            if getattr(self, "overlay", None) is not None:
+                self.overlay.release()
             imgui.backends.opengl3_shutdown()
             imgui.backends.glfw_shutdown()
             imgui.destroy_context()
@@ -309,13 +316,14 @@ class ViewerApp:
         width, height = glfw.get_framebuffer_size(self._window)
         if width <= 0 or height <= 0:  # minimised
             return
-        camera, t = self._current_view(width, height)
+        window_camera, t = self._current_view(width, height)
+        camera = window_camera
         screenshot = self._screenshot_request
         pose = (np.asarray(camera.w2c).tobytes(), camera.fx, camera.fy, camera.cx, camera.cy)
         moving, self._last_pose = pose != self._last_pose and self._last_pose is not None, pose
         scale = 1.0 if screenshot else self.resolution.choose(moving, width, height)
         if scale != 1.0:
-            camera = camera.resized(*scaled_size(width, height, scale))
+            camera = window_camera.resized(*scaled_size(width, height, scale))
         s = self.settings
         splats = self.renderer.splats_at(t)
         key = SortKey.of(camera, t, s.splat_scale)
@@ -337,7 +345,36 @@ class ViewerApp:
         if screenshot:
             self._screenshot_request = None
             self._save_screenshot(screenshot, camera, t, width, height)
+        self._draw_overlays(window_camera)  # after the screenshot: screenshots show the model only
         st.frame_ms = (time.perf_counter() - t_frame) * 1e3
+
+    def _draw_overlays(self, camera) -> None:
+        """The camera path (its curve and key frustums) and the dataset cameras, as lines over the splats; a
+        frustum at the viewing camera's own position (snapped to it, or flying the path) is left out."""
+        segments, colors = [], []
+        depth = 0.15 * self.framing.radius
+        here = camera.position
+
+        def add(segs: np.ndarray, color) -> None:
+            segments.append(segs)
+            colors.append(np.broadcast_to(np.asarray(color, np.float32), (len(segs), 3)))
+
+        def add_frustum(cam, color) -> None:
+            if np.linalg.norm(cam.position - here) > 1e-3 * depth:
+                add(frustum_segments(cam, depth), color)
+
+        pe = self._path
+        if pe.show and pe.path is not None:
+            add(path_segments(pe.path), PATH_COLOR)
+            for key in pe.path.keys:
+                add_frustum(pe.path.camera(key.time, camera.width, camera.height), KEY_COLOR)
+        if self._show_cameras:
+            for i, view in enumerate(self._views):
+                add_frustum(view.camera, SELECTED_COLOR if i == self._view_index else DATASET_COLOR)
+        if segments:
+            self.ctx.screen.use()
+            self.ctx.viewport = (0, 0, camera.width, camera.height)
+            self.overlay.draw(camera, np.concatenate(segments), np.concatenate(colors))
 
     def _take_sort_result(self, res: SortResult | None) -> None:
         if res is not None and res.tag == self._generation:
@@ -451,6 +488,7 @@ class ViewerApp:
                 self._path.playing = False
             imgui.same_line()
             imgui.text(Path(self._views[self._view_index].name).name)
+            _, self._show_cameras = imgui.checkbox("show dataset cameras", self._show_cameras)
 
         imgui.separator_text("Look")
         _, mode = imgui.combo("mode", RENDER_MODES.index(s.mode), list(RENDER_MODES))
@@ -515,6 +553,7 @@ class ViewerApp:
             self._attempt(lambda: setattr(pe, "path", CameraPath.load(pe.file)), f"loaded camera path {pe.file}")
         imgui.same_line()
         _, pe.overwrite = imgui.checkbox("overwrite", pe.overwrite)
+        _, pe.show = imgui.checkbox("show path", pe.show)
 
 
 def run_app(source, options: AppOptions | None = None) -> dict:

@@ -1,0 +1,95 @@
+"""Line overlays of the desktop app: the camera path being edited and camera frustums, drawn over the splats.
+
+The geometry is pure numpy (``[M, 2, 3]`` world-space segments, one row per line segment); `LineRenderer` draws
+segments with per-segment colours through ``shaders/lines.glsl``, which projects them with the splats' own pinhole
+convention. Overlays are drawn after a screenshot is read, so screenshots show the model only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from splat4d.cameras import Camera
+from splat4d.gl import load_program
+
+from .camera_path import CameraPath
+
+#: Colours (RGB in [0, 1]) of the overlays.
+PATH_COLOR = (1.0, 0.85, 0.1)
+KEY_COLOR = (1.0, 0.5, 0.1)
+DATASET_COLOR = (0.35, 0.75, 1.0)
+SELECTED_COLOR = (1.0, 1.0, 1.0)
+
+
+def frustum_segments(camera: Camera, depth: float) -> np.ndarray:
+    """``[9, 2, 3]`` segments drawing `camera` as a pyramid: its centre to the four corners of its image at
+    `depth` along the view axis, the rectangle of those corners, and a tick above the top edge (image -y) showing
+    which way is up."""
+    w, h = camera.width, camera.height
+    pixels = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
+    rays = np.stack([(pixels[:, 0] - camera.cx) / camera.fx, (pixels[:, 1] - camera.cy) / camera.fy,
+                     np.ones(4)], -1)
+    c2w = camera.c2w
+    corners = (rays * depth) @ c2w[:3, :3].T + c2w[:3, 3]
+    centre = c2w[:3, 3]
+    top_mid = 0.5 * (corners[0] + corners[1])
+    up = -c2w[:3, 1] * (0.25 * depth * h / camera.fy)  # image -y, a quarter of the half-height
+    segments = [(centre, c) for c in corners]
+    segments += [(corners[i], corners[(i + 1) % 4]) for i in range(4)]
+    segments.append((top_mid, top_mid + up))
+    return np.asarray(segments, np.float64)
+
+
+def polyline_segments(points: np.ndarray) -> np.ndarray:
+    """``[K, 3]`` points -> ``[K - 1, 2, 3]`` segments joining consecutive points."""
+    p = np.asarray(points, np.float64)
+    return np.stack([p[:-1], p[1:]], 1) if len(p) > 1 else np.zeros((0, 2, 3))
+
+
+def path_segments(path: CameraPath, samples_per_key: int = 24) -> np.ndarray:
+    """The interpolated camera centres of `path` over its whole duration (the closing segment of a looping path
+    included), as a polyline of `samples_per_key` segments per key interval."""
+    count = max(2, samples_per_key * max(len(path.keys) - (0 if path.loop else 1), 1) + 1)
+    times = path.start + np.linspace(0.0, path.duration, count)
+    return polyline_segments(np.array([path.pose(float(t))[0][:3, 3] for t in times]))
+
+
+class LineRenderer:
+    """Draws coloured segments over whatever is in the target, with no depth test (always visible)."""
+
+    def __init__(self, ctx) -> None:
+        self.ctx = ctx
+        self.program = load_program(ctx, "lines")
+        self._vbo = None
+        self._vao = None
+        self._capacity = 0
+
+    def draw(self, camera: Camera, segments: np.ndarray, colors: np.ndarray) -> None:
+        """Draw ``[M, 2, 3]`` `segments` with ``[M, 3]`` `colors` as seen by `camera`, into the current
+        framebuffer and viewport (which should have the camera's image size)."""
+        m = len(segments)
+        if m == 0:
+            return
+        verts = np.empty((m, 2, 6), np.float32)
+        verts[..., :3] = segments
+        verts[..., 3:] = np.asarray(colors, np.float32)[:, None, :]
+        data = verts.tobytes()
+        if self._vbo is None or len(data) > self._capacity:
+            self.release()
+            self._capacity = max(len(data), 4096)
+            self._vbo = self.ctx.buffer(reserve=self._capacity, dynamic=True)
+            self._vao = self.ctx.vertex_array(self.program, [(self._vbo, "3f 3f", "in_position", "in_color")])
+        self._vbo.write(data)
+        prog = self.program
+        prog["u_w2c"].write(np.ascontiguousarray(camera.w2c.T, np.float32).tobytes())  # column-major
+        prog["u_intrinsics"].value = (camera.fx, camera.fy, camera.cx, camera.cy)
+        prog["u_size"].value = (float(camera.width), float(camera.height))
+        self.ctx.disable(self.ctx.DEPTH_TEST | self.ctx.BLEND)
+        self._vao.render(self.ctx.LINES, vertices=2 * m)
+
+    def release(self) -> None:
+        for obj in (self._vao, self._vbo):
+            if obj is not None:
+                obj.release()
+        self._vao = self._vbo = None
+        self._capacity = 0

@@ -1,7 +1,8 @@
 """The Gaussian models: native 4D Gaussians, keyframed (baked) Gaussians, and the 3D slice both produce.
 
 Data flows one way: dataset -> trainer -> checkpoint -> (viewer | exporters). All of them meet here: the trainer
-optimises the tensors of a `Gaussians4D`, and the viewer and exporters only ever call ``model.slice(t)``.
+optimises the tensors of a `Gaussians4D`, and the viewer and exporters only ever call ``model.slice(t)`` (or
+``model.centres(times)`` when the means and visibility are all they need, e.g. for bounds and framing).
 
 Tensors are torch (float32 or float64, any device); slicing is differentiable so the trainer can backpropagate
 through it. Shapes use N = number of Gaussians, F = number of keyframes, K = (sh_degree + 1)^2 spatial SH
@@ -346,12 +347,13 @@ class KeyframedGaussians:
         return replace(self, **{k: v.to(device=device, dtype=dtype) for k, v in self.tensors().items()})
 
 
-#: Any model a checkpoint can hold; both have ``slice(t)``, ``time_range``, ``sh_degree`` and ``len()``.
 def _lerp(x: Tensor, i: int, j: int, w: float) -> Tensor:
     """Keys i and j of `x` (``[F, ...]``) blended with weight w on the second."""
     return x[i] if w == 0.0 else x[i] + (x[j] - x[i]) * w
 
 
+#: Any model a checkpoint can hold; both have ``slice(t)``, ``centres(times)``, ``time_range``, ``sh_degree`` and
+#: ``len()``.
 Model = Union[Gaussians4D, KeyframedGaussians]
 MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians}
 

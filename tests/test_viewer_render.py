@@ -291,3 +291,10 @@ def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model
         assert np.all(m[:, 1] + m[:, 3] >= t[:, 1] + t[:, 3] - 1e-3)
         assert np.median(m[:, 2] / t[:, 2]) < 2.5  # conservative, not absurdly so
     assert _boxes_for(truth, full_cam) is truth.boxes
+
+
+def test_render_without_a_checkpoint_renders_the_bundled_sample(tmp_path):
+    out = tmp_path / "sample.png"
+    assert main(["render", "--out", str(out), "--size", "64x48", "--quiet"]) == 0
+    img = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
+    assert img.shape[:2] == (48, 64) and img[..., :3].std() > 5  # the spinner, not an empty frame

@@ -12,6 +12,7 @@ Output by name: FILE.mp4 (H.264), FILE.png / FILE.exr (one image; EXR keeps alph
 suffix (numbered frames, --image-format png|exr). Existing outputs are kept unless --force.
 
 examples:
+  splat4d render --out sample.mp4                  (the bundled trained sample)
   splat4d render model.safetensors --out orbit.mp4
   splat4d render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
   splat4d render model.safetensors --out frames --image-format exr --background transparent --frames 48
@@ -24,7 +25,8 @@ examples:
 def add_args(p: argparse.ArgumentParser) -> None:
     from splat4d.viewer.options import argtype, parse_size, parse_vector
 
-    p.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any importable format)")
+    p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
+                   help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
                    help="output: .mp4, .png, .exr, or a folder name for a frame sequence")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -101,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
                               "numbered frames, or an .mp4")
         args.frames = 1
     bg, transparent = parse_background(args.background)
-    ckpt = load_model(args.checkpoint)
+    from splat4d.samples.trained import trained_checkpoint
+
+    ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
     model = ckpt.model
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                               background=bg if bg is not None else ckpt.background, transparent=transparent,

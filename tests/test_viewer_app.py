@@ -94,6 +94,7 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
     report = json.loads(report_path.read_text())
     assert report["frames"] == 12
     assert report["resolutions"] == [0.5, 1.0]  # frames at half resolution, the screenshot at full
+    assert report["overlay_lines"] == 24 + 4 * 9  # the 2-key path's polyline, 2 key and 2 dataset frustums
     assert report["time_end"] != report["time_start"]  # time played
     assert report["sorts"] >= 1
     img = read_shot(shot)

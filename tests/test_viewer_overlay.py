@@ -6,7 +6,7 @@ import numpy as np
 
 from splat4d.cameras import orbit
 from splat4d.viewer.camera_path import CameraKey, CameraPath
-from splat4d.viewer.overlay import LineRenderer, frustum_segments, path_segments
+from splat4d.viewer.overlay import Frustums, LineRenderer, frustum_segments, path_segments
 from splat4d.viewer.renderer import headless_context
 
 
@@ -21,6 +21,20 @@ def test_frustum_reaches_the_image_corners_at_the_given_depth():
     np.testing.assert_allclose(seg[4:8, 0], seg[:4, 1])  # the rectangle joins the corners
     tick_uv, _ = cam.project(seg[8])
     assert tick_uv[1, 1] < abs(tick_uv[0, 1]) < 1e-9 and abs(tick_uv[1, 0] - 80) < 1e-9  # up: image -y, mid-top
+
+
+def test_frustums_leave_out_the_viewing_camera():
+    cams = [orbit(20, a, 2.0, fov_deg=40, width=64, height=48) for a in (0, 90, 180)]
+    f = Frustums.of(cams, [(1, 0, 0), (0, 1, 0), (0, 0, 1)], 0.3)
+    segs, colors = f.lines(cams[1].position, 1e-6)  # seen from the second camera: its own frustum is dropped
+    assert segs.shape == (18, 2, 3) and colors.shape == (18, 3)
+    expected = np.concatenate([frustum_segments(cams[0], 0.3), frustum_segments(cams[2], 0.3)])
+    np.testing.assert_array_equal(segs, expected)
+    np.testing.assert_array_equal(colors[:9], np.tile([1, 0, 0], (9, 1)))
+    np.testing.assert_array_equal(colors[9:], np.tile([0, 0, 1], (9, 1)))
+    assert f.lines(np.zeros(3), 1e-6)[0].shape == (27, 2, 3)
+    empty = Frustums.of([], [], 0.3).lines(np.zeros(3), 1e-6)
+    assert empty[0].shape == (0, 2, 3) and empty[1].shape == (0, 3)
 
 
 def test_path_polyline_passes_through_the_keys():

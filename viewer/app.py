@@ -31,8 +31,7 @@ from splat4d.fileio import atomic_path
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
-from .overlay import (DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, LineRenderer, frustum_segments,
-                      path_segments)
+from .overlay import DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, Frustums, LineRenderer, path_segments
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult
 from .trajectory import frame_model
@@ -117,6 +116,7 @@ class ViewerApp:
         self._views = []
         self._view_index = 0
         self._show_cameras = True
+        self._overlay_cache: tuple | None = None
         self._generation = 0
         self._order: SortResult | None = None
         self._requested: tuple | None = None
@@ -351,30 +351,38 @@ class ViewerApp:
     def _draw_overlays(self, camera) -> None:
         """The camera path (its curve and key frustums) and the dataset cameras, as lines over the splats; a
         frustum at the viewing camera's own position (snapped to it, or flying the path) is left out."""
-        segments, colors = [], []
-        depth = 0.15 * self.framing.radius
-        here = camera.position
-
-        def add(segs: np.ndarray, color) -> None:
-            segments.append(segs)
-            colors.append(np.broadcast_to(np.asarray(color, np.float32), (len(segs), 3)))
-
-        def add_frustum(cam, color) -> None:
-            if np.linalg.norm(cam.position - here) > 1e-3 * depth:
-                add(frustum_segments(cam, depth), color)
-
-        pe = self._path
-        if pe.show and pe.path is not None:
-            add(path_segments(pe.path), PATH_COLOR)
-            for key in pe.path.keys:
-                add_frustum(pe.path.camera(key.time, camera.width, camera.height), KEY_COLOR)
-        if self._show_cameras:
-            for i, view in enumerate(self._views):
-                add_frustum(view.camera, SELECTED_COLOR if i == self._view_index else DATASET_COLOR)
-        if segments:
+        depth = 0.15 * self.framing.radius  # frustum size
+        path_lines, frustums = self._overlay_geometry(camera.width, camera.height, depth)
+        segs, colors = frustums.lines(camera.position, 1e-3 * depth)
+        if len(path_lines):
+            segs = np.concatenate([path_lines, segs])
+            colors = np.concatenate([np.broadcast_to(np.asarray(PATH_COLOR, np.float32), (len(path_lines), 3)),
+                                     colors])
+        self.report["overlay_lines"] = len(segs)
+        if len(segs):
             self.ctx.screen.use()
             self.ctx.viewport = (0, 0, camera.width, camera.height)
-            self.overlay.draw(camera, np.concatenate(segments), np.concatenate(colors))
+            self.overlay.draw(camera, segs, colors)
+
+    def _overlay_geometry(self, width: int, height: int, depth: float):
+        """(path polyline, `Frustums` of the path keys and dataset cameras), remade only when what they show
+        changed: sampling a path evaluates a spline and a slerp per point, too slow for every frame."""
+        pe = self._path
+        path = pe.path if pe.show else None
+        views = self._views if self._show_cameras else ()  # () is one object: a stable cache key
+        # the path and the view list are replaced, never changed in place; the cache holds them, so while it
+        # lives their ids cannot be reused by new objects
+        key = (id(path), id(views), self._view_index, depth, width, height)
+        if self._overlay_cache is None or self._overlay_cache[0] != key:
+            cameras, colors = [], []
+            if path is not None:
+                cameras += [path.camera(k.time, width, height) for k in path.keys]
+                colors += [KEY_COLOR] * len(path.keys)
+            cameras += [v.camera for v in views]
+            colors += [SELECTED_COLOR if i == self._view_index else DATASET_COLOR for i in range(len(views))]
+            lines = path_segments(path) if path is not None else np.zeros((0, 2, 3))
+            self._overlay_cache = (key, lines, Frustums.of(cameras, colors, depth), (path, views))
+        return self._overlay_cache[1], self._overlay_cache[2]
 
     def _take_sort_result(self, res: SortResult | None) -> None:
         if res is not None and res.tag == self._generation:

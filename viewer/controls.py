@@ -220,17 +220,25 @@ class Resolution:
 
     def predicted_ms(self, step: float) -> tuple[float, bool] | None:
         """(predicted draw ms at `step`, whether it was measured there) or None with nothing measured."""
+        return self._predictions([step]).get(step)
+
+    def _predictions(self, steps) -> dict[float, tuple[float, bool]]:
+        """`predicted_ms` of each of `steps` (empty with nothing measured lately)."""
         fresh = {k: ms for k, (ms, seen) in self._measured.items() if self._frame - seen < self.memory}
-        if step in fresh:
-            return fresh[step], True
         if not fresh:
-            return None
-        nearest = min(fresh, key=lambda k: abs(k - step))
-        return fresh[nearest] * (step / nearest) ** 2, False
+            return {}
+        out = {}
+        for step in steps:
+            if step in fresh:
+                out[step] = (fresh[step], True)
+            else:
+                nearest = min(fresh, key=lambda k: abs(k - step))
+                out[step] = (fresh[nearest] * (step / nearest) ** 2, False)
+        return out
 
     def choose(self, moving: bool, width: int, height: int) -> float:
         """The scale of the next frame in a window of `width` x `height` pixels."""
-        top = self.step_of(max(RESOLUTION_STEPS[0], min(1.0, float(self.scale))))
+        top = self.step_of(self.scale)
         if (width, height) != self._window:
             if self._window != (0, 0):  # measured in another window size
                 self._measured.clear()
@@ -239,9 +247,9 @@ class Resolution:
             self._current = top
             return top
         steps = [s for s in RESOLUTION_STEPS if s <= top]
-        predictions = {s: self.predicted_ms(s) for s in steps}
-        if any(p is None for p in predictions.values()):
-            return self._current if self._current <= top else top
+        predictions = self._predictions(steps)
+        if not predictions:
+            return min(self._current, top)
         limit = max(self.budget_ms, 1.25 * min(ms for ms, _ in predictions.values()))
         fitting = [s for s, (ms, measured) in predictions.items()
                    if ms <= (limit if (measured or s <= self._current) else 0.8 * limit)]

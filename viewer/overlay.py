@@ -7,6 +7,9 @@ convention. Overlays are drawn after a screenshot is read, so screenshots show t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Sequence
+
 import numpy as np
 
 from splat4d.cameras import Camera
@@ -52,6 +55,29 @@ def path_segments(path: CameraPath, samples_per_key: int = 24) -> np.ndarray:
     count = max(2, samples_per_key * max(len(path.keys) - (0 if path.loop else 1), 1) + 1)
     times = path.start + np.linspace(0.0, path.duration, count)
     return polyline_segments(np.array([path.pose(float(t))[0][:3, 3] for t in times]))
+
+
+@dataclass
+class Frustums:
+    """Camera frustums ready to draw: ``centres [F, 3]``, ``segments [F, 9, 2, 3]`` (`frustum_segments`) and
+    ``colors [F, 3]``. Built once per set of cameras; `lines` is the cheap per-frame part."""
+
+    centres: np.ndarray
+    segments: np.ndarray
+    colors: np.ndarray
+
+    @classmethod
+    def of(cls, cameras: Sequence[Camera], colors: Sequence, depth: float) -> "Frustums":
+        if not cameras:
+            return cls(np.zeros((0, 3)), np.zeros((0, 9, 2, 3)), np.zeros((0, 3), np.float32))
+        return cls(np.array([c.position for c in cameras]), np.stack([frustum_segments(c, depth) for c in cameras]),
+                   np.asarray(colors, np.float32).reshape(len(cameras), 3))
+
+    def lines(self, away_from: np.ndarray, min_distance: float) -> tuple[np.ndarray, np.ndarray]:
+        """(``[M, 2, 3]`` segments, ``[M, 3]`` colours) of the frustums whose centre is farther than
+        `min_distance` from `away_from` (the viewing camera: its own frustum would frame the screen)."""
+        keep = np.linalg.norm(self.centres - np.asarray(away_from, np.float64), axis=1) > min_distance
+        return self.segments[keep].reshape(-1, 2, 3), np.repeat(self.colors[keep], 9, axis=0)
 
 
 class LineRenderer:

@@ -81,6 +81,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from splat4d.errors import CameraError
     from splat4d.formats import load_model
+    from splat4d.samples.trained import trained_checkpoint
     from splat4d.viewer.camera_path import CameraPath, path_from_dataset
     from splat4d.viewer.headless import render_to_file
     from splat4d.viewer.options import OptionError, parse_background
@@ -103,8 +104,6 @@ def run(args: argparse.Namespace) -> int:
                               "numbered frames, or an .mp4")
         args.frames = 1
     bg, transparent = parse_background(args.background)
-    from splat4d.samples.trained import trained_checkpoint
-
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
     model = ckpt.model
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,

@@ -62,8 +62,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from splat4d.fileio import check_writable
     from splat4d.formats import load_model
+    from splat4d.samples.trained import trained_checkpoint
     from splat4d.viewer.app import AppOptions, run_app
     from splat4d.viewer.camera_path import CameraPath, dataset_views
+    from splat4d.viewer.controls import RESOLUTION_STEPS
     from splat4d.viewer.options import OptionError, parse_background
     from splat4d.viewer.renderer import RenderSettings
 
@@ -76,29 +78,23 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--exit-after must be at least 1, got {args.exit_after}")
     if args.screenshot:
         check_writable(args.screenshot, args.force)
-    if not 0.25 <= args.render_scale <= 1.0:
-        raise OptionError(f"--render-scale must be between 0.25 and 1, got {args.render_scale}")
-    if abs(8 * args.render_scale - round(8 * args.render_scale)) > 1e-6:
-        raise OptionError(f"--render-scale must be a multiple of 1/8 (0.25, 0.375, 0.5, ... 1), got "
-                          f"{args.render_scale}")
+    if not any(abs(args.render_scale - step) < 1e-9 for step in RESOLUTION_STEPS):
+        raise OptionError(f"--render-scale must be a multiple of 1/8 between 0.25 and 1 (0.25, 0.375, 0.5, ... 1), "
+                          f"got {args.render_scale}")
     look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                           composite=args.composite, background=bg or (0.0, 0.0, 0.0))
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, screenshot_dir=args.screenshot_dir,
                          vsync=not args.no_vsync, render_scale=args.render_scale,
-                         adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after, screenshot=args.screenshot,
-                         report=args.report, force=args.force)
+                         adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
+                         screenshot=args.screenshot, report=args.report, force=args.force)
     # fail with a one-line error before opening a window
     if args.path:
         CameraPath.load(args.path)
     if args.cameras:
         dataset_views(args.cameras, args.split)
-    if args.checkpoint is None:
-        from splat4d.samples.trained import trained_checkpoint
-
-        args.checkpoint = str(trained_checkpoint("spinner"))
-    ckpt = load_model(args.checkpoint)
+    ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
     report = run_app(ckpt, options)
     if args.exit_after is not None:
         print(f"drew {report['frames']} frame(s); time {report['time_start']:.3f} -> {report['time_end']:.3f}")

@@ -114,6 +114,7 @@ def test_app_opens_the_bundled_sample_paused_in_depth_view_and_needs_a_display(d
     report = json.loads(report_path.read_text())
     assert report["time_start"] == report["time_end"] == 0.25
     assert report["resolutions"] == [1.0]  # the view did not move: full resolution
+    assert report["moving_frames"] == 0
     assert read_shot(shot).std() > 0.05  # the spinner is in view
     assert psnr(read_shot(shot), headless_of(report, model)) >= 40.0
     # an existing screenshot is not overwritten, and no display is a one-line error
@@ -124,3 +125,19 @@ def test_app_opens_the_bundled_sample_paused_in_depth_view_and_needs_a_display(d
                               capture_output=True, text=True, timeout=60)
     assert headless.returncode == 1
     assert headless.stderr.strip().startswith("splat4d view: error:") and "Traceback" not in headless.stderr
+
+
+def test_app_plays_a_camera_path_from_the_start_and_sees_the_view_move(display, files, tmp_path):
+    root, model, _ = files
+    report_path = tmp_path / "report.json"
+    ckpt = str(root / "model.safetensors")
+    proc = run_view(display, ckpt, "--size", "160x120", "--exit-after", "6", "--path", str(root / "path.json"),
+                    "--play-path", "--paused", "--report", str(report_path))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    # the path's camera moves every frame after the first (6 frames of at most 0.1 s each stay inside its 1 s),
+    # and the path's scene times drive the model time although playback was paused
+    assert report["moving_frames"] == 5
+    assert report["time_end"] != report["time_start"]
+    bad = run_view(display, ckpt, "--play-path", "--exit-after", "1")
+    assert bad.returncode == 1 and "--play-path needs --path" in bad.stderr and "Traceback" not in bad.stderr

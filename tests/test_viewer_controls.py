@@ -60,6 +60,24 @@ def test_playback_loops_stops_and_pauses():
     assert p.time == 1.0
 
 
+def test_playback_steps_frame_by_frame_through_frame_times_or_playback_frames():
+    p = Playback(time_range=(0.0, 1.0), time=0.3, frame_times=(0.0, 0.25, 0.5, 0.75, 1.0))
+    assert p.step(1) == 0.5 and not p.playing  # from between frames: the next one, and playback pauses
+    assert p.step(1) == 0.75
+    assert p.step(-2) == 0.25
+    p.time = 0.3
+    assert p.step(-1) == 0.25  # from between frames: the one before
+    p.time = 0.25 + 1e-9
+    assert p.step(1) == 0.5  # within rounding of a frame counts as on it
+    p.time = 1.0
+    assert p.step(1) == 0.0  # looping wraps round ...
+    p.loop, p.time = False, 1.0
+    assert p.step(1) == 1.0 and p.step(-5) == 0.0  # ... otherwise the ends hold
+    q = Playback(time_range=(0.0, 2.0), time=1.0, loop_seconds=2.0)  # no frame times: 60 frames over the range
+    assert q.step(1) == pytest.approx(1.0 + 2.0 / 60)
+    assert q.step(-3) == pytest.approx(1.0 - 2 * 2.0 / 60)
+
+
 def test_resolution_drops_while_moving_to_fit_the_budget_and_is_sharp_at_rest():
     from splat4d.viewer.controls import RESOLUTION_STEPS, Resolution, scaled_size
 

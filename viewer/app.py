@@ -54,6 +54,8 @@ class AppOptions:
     cameras: str | None = None
     split: str | None = "train"
     camera_path: str | None = None
+    #: start playing `camera_path` at once (a presentation, a scripted capture)
+    play_path: bool = False
     screenshot_dir: str = "."
     vsync: bool = True
     #: share of the window's pixels drawn per axis at rest (`Resolution.scale`) ...
@@ -196,6 +198,13 @@ class ViewerApp:
         self.status = f"opened {self.source_name}: {len(model):,} Gaussians"
         if not self.options.cameras:
             self._views = self._training_views(ckpt)
+        self._update_frame_times()
+
+    def _update_frame_times(self) -> None:
+        """The times that frame stepping visits: a keyframed model's keys, else its dataset's frame times."""
+        keys = getattr(self.model, "times", None)
+        times = keys.tolist() if keys is not None else sorted({v.time for v in self._views})
+        self.playback.frame_times = tuple(float(t) for t in times)
 
     @staticmethod
     def _training_views(ckpt) -> list:
@@ -219,9 +228,12 @@ class ViewerApp:
             self.load(self._source)
             if self.options.cameras:
                 self._views = dataset_views(self.options.cameras, self.options.split)
+                self._update_frame_times()
             if self.options.camera_path:
                 self._path.path = CameraPath.load(self.options.camera_path)
                 self._path.file = self.options.camera_path
+                if self.options.play_path:
+                    self._path.playing, self._path.time = True, self._path.path.start
             self.report.update(time_start=self.playback.time, started=time.time())
             last = time.perf_counter()
             frames = 0
@@ -342,6 +354,7 @@ class ViewerApp:
         st = self._stats
         st.frame, st.scale, st.moving = stats, scale, moving
         self.report.setdefault("resolutions", set()).add(scale)
+        self.report["moving_frames"] = self.report.get("moving_frames", 0) + moving
         if screenshot:
             self._screenshot_request = None
             self._save_screenshot(screenshot, camera, t, width, height)
@@ -448,6 +461,9 @@ class ViewerApp:
             self._path.playing = False
         if imgui.is_key_pressed(key.space, False):
             self.playback.playing = not self.playback.playing
+        for k, frames in ((key.left_arrow, -1), (key.right_arrow, 1), (key.comma, -1), (key.period, 1)):
+            if imgui.is_key_pressed(k, True):
+                self.playback.step(frames)
         if imgui.is_key_pressed(key.r, False):
             c.reset(self.framing)
         if imgui.is_key_pressed(key.f, False):
@@ -472,8 +488,16 @@ class ViewerApp:
 
         imgui.separator_text("Time")
         t0, t1 = pb.time_range
+        if imgui.arrow_button("##back", imgui.Dir.left):
+            pb.step(-1)
+        imgui.same_line()
         if imgui.button("Pause" if pb.playing else "Play"):
             pb.playing = not pb.playing
+        imgui.same_line()
+        if imgui.arrow_button("##on", imgui.Dir.right):
+            pb.step(1)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("one frame on (right arrow; left arrow: back)")
         imgui.same_line()
         _, pb.loop = imgui.checkbox("loop", pb.loop)
         changed, value = imgui.slider_float("time", pb.time, t0, t1, "%.3f")

@@ -131,12 +131,18 @@ class CameraController:
         self.azimuth, self.elevation = azimuth, elevation
 
 
+#: Without frame times, `Playback.step` moves by one frame of playback at this rate (speed 1).
+STEP_FPS = 30
+
+
 @dataclass
 class Playback:
     """Model time of the app: ``time`` in ``time_range``, advancing while ``playing``.
 
     ``speed`` 1 plays one pass through the time range every `loop_seconds`; ``loop`` wraps at the end, otherwise
-    playback stops there.
+    playback stops there. `step` moves by one frame: to the neighbouring time of ``frame_times`` (a keyframed
+    model's keys, the training dataset's frame times) or, without them, by one frame of playback at
+    `STEP_FPS` frames per second.
     """
 
     time_range: tuple[float, float] = (0.0, 1.0)
@@ -145,6 +151,7 @@ class Playback:
     speed: float = 1.0
     loop: bool = True
     loop_seconds: float = 2.0
+    frame_times: tuple[float, ...] = ()
 
     def advance(self, dt: float) -> float:
         """Move time on by `dt` wall-clock seconds; returns the new time."""
@@ -162,6 +169,21 @@ class Playback:
             self.playing = False
         self.time = t
         return t
+
+    def step(self, frames: int) -> float:
+        """Pause and move `frames` frames on (negative: back), wrapping round when looping; returns the new time."""
+        self.playing = False
+        t0, t1 = self.time_range
+        times = np.unique(np.clip(self.frame_times, t0, t1)) if len(self.frame_times) else \
+            np.linspace(t0, t1, max(2, round(STEP_FPS * self.loop_seconds) + 1))
+        eps = 1e-6 * max(t1 - t0, 1e-12)  # a time within rounding of a frame is on it
+        if frames >= 0:  # the first frame after the current time is one frame on
+            k = int(np.searchsorted(times, self.time + eps, side="right")) + frames - 1
+        else:  # the last frame before it is one frame back
+            k = int(np.searchsorted(times, self.time - eps, side="left")) + frames
+        k = k % len(times) if self.loop else min(max(k, 0), len(times) - 1)
+        self.time = float(times[k])
+        return self.time
 
     def set_range(self, time_range: tuple[float, float]) -> None:
         self.time_range = (float(time_range[0]), float(time_range[1]))

@@ -44,6 +44,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cameras", metavar="DATASET", help="training dataset whose cameras can be snapped to")
     p.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
     p.add_argument("--path", metavar="JSON", help="camera path to load (play it from the panel)")
+    p.add_argument("--play-path", action="store_true", help="start playing the --path camera path at once")
     p.add_argument("--screenshot-dir", default=".", help="folder for screenshots taken with P (default .)")
     p.add_argument("--no-vsync", action="store_true", help="draw as fast as possible")
     p.add_argument("--render-scale", type=float, default=1.0, metavar="S",
@@ -74,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("the window cannot show a transparent background; use `splat4d render` for alpha output")
     if args.screenshot and args.exit_after is None:
         raise OptionError("--screenshot needs --exit-after (press P for screenshots while viewing)")
+    if args.play_path and not args.path:
+        raise OptionError("--play-path needs --path")
     if args.exit_after is not None and args.exit_after < 1:
         raise OptionError(f"--exit-after must be at least 1, got {args.exit_after}")
     if args.screenshot:
@@ -85,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                           composite=args.composite, background=bg or (0.0, 0.0, 0.0))
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
-                         split=args.split, camera_path=args.path, screenshot_dir=args.screenshot_dir,
+                         split=args.split, camera_path=args.path, play_path=args.play_path, screenshot_dir=args.screenshot_dir,
                          vsync=not args.no_vsync, render_scale=args.render_scale,
                          adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
                          screenshot=args.screenshot, report=args.report, force=args.force)

@@ -22,17 +22,19 @@
 // that the front-to-back early stop (splat_screen.glsl writes depth 0 over saturated pixels) rejects them there.
 //
 // u_mode: 0 colour, 1 depth (accumulates the expected depth sum z_i a_i T_i), 2 alpha (as colour),
-//         3 ellipse outlines (2 sigma), 4 centres (small discs); the last two in SPLAT_OVERLAY only.
+//         3 ellipse outlines (2 sigma), 4 centres (small discs); the last two in SPLAT_OVERLAY only;
+//         5 speed (as depth: the pre-pass put each Gaussian's speed where its depth goes).
 
 #define MODE_DEPTH 1
 #define MODE_OUTLINES 3
 #define MODE_CENTRES 4
+#define MODE_SPEED 5
 #define OUTLINE_SIGMAS 2.0
 #define CENTRE_RADIUS_PX 2.0
 
 #if defined VERTEX_SHADER
 
-in vec4 i_geom;   // centre x, y (pixels, y down), radius (std-devs, 0 = culled), depth
+in vec4 i_geom;   // centre x, y (pixels, y down), radius (std-devs, 0 = culled), depth (speed in MODE_SPEED)
 in vec4 i_axes;   // axis 1 xy, axis 2 xy (pixels per std-dev)
 in vec4 i_color;  // rgb, opacity
 in vec4 i_rect;   // tile rectangle x0, y0, x1, y1 (pixels, y down)
@@ -138,7 +140,7 @@ void main() {
     float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
     // below the cut-off the fragment adds exactly nothing (cheaper than discard on software rasterizers)
     alpha = (alpha < ALPHA_THRESHOLD || !inside) ? 0.0 : alpha;
-    vec3 value = u_mode == MODE_DEPTH ? vec3(v_depth) : v_color.rgb;
+    vec3 value = u_mode == MODE_DEPTH || u_mode == MODE_SPEED ? vec3(v_depth) : v_color.rgb;
     f_color = vec4(value * alpha, alpha);
 }
 

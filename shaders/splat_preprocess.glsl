@@ -19,7 +19,7 @@
 in vec4 a_mean_t;   // mean xyz at the temporal mean, temporal mean mu_t
 in vec4 a_motion;   // velocity xyz, 1 / (2 Sigma_tt) (0: no temporal fade)
 in vec4 a_cov_a;    // conditional covariance c00 c01 c02 c11
-in vec4 a_cov_b;    // c12 c22, opacity, 0 (padding)
+in vec4 a_cov_b;    // c12 c22, opacity, speed |d mean / dt|
 
 uniform mat3 u_rot;         // world -> camera rotation (OpenCV axes)
 uniform vec3 u_trans;       // world -> camera translation
@@ -31,8 +31,9 @@ uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time te
 uniform float u_scale;      // splat scale (multiplies every std-dev)
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
+uniform int u_speed;        // 1: the speed render mode, o_geom.w holds the Gaussian's speed instead of its depth
 
-out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z
+out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z (speed)
 out vec4 o_axes;   // 2D principal axes scaled by their std-devs (pixels): axis 1 xy, axis 2 xy
 out vec4 o_color;  // rgb, opacity at t
 out vec4 o_rect;   // pixels the reference rasterizer may touch: x0, y0, x1, y1 (tile-aligned, end exclusive)
@@ -165,7 +166,7 @@ void main() {
         cull();
         return;
     }
-    o_geom = vec4(centre, max(radius, 1e-6), p.z);
+    o_geom = vec4(centre, max(radius, 1e-6), u_speed != 0 ? a_cov_b.w : p.z);
     o_axes = vec4(axis1, axis2);
     o_color = vec4(sh_color(mean - u_campos, -dt), opacity);
     o_rect = vec4(floor(lo / float(TILE_SIZE)), ceil(hi / float(TILE_SIZE))) * float(TILE_SIZE);

@@ -81,6 +81,44 @@ def test_gl_matches_rasterizer_for_a_keyframed_model():
         assert value >= MIN_PSNR, (t, value)
 
 
+def test_speed_mode_accumulates_each_gaussians_speed_like_the_rasterizer_composites_colour():
+    """The speed mode composites |d mean / dt| in place of colour: the GL accumulation equals the rasterizer's image
+    of the same slice with every Gaussian's colour set to its speed (`Gaussians3D.velocities`), for a native model
+    (conditional-mean velocity) and a keyframed one (its key segment's velocity)."""
+    from dataclasses import replace
+
+    from splat4d.sh import SH_C0
+    from splat4d.viewer.splats import to_arrays, typical_speed
+
+    native = synthetic_model(3000, seed=5, sh_degree=1, radius=0.4, scale=0.02, speed=0.5)
+    times = torch.tensor([0.0, 0.5, 1.0])
+    slices = [native.slice(float(t)) for t in times]
+    sq = [g.scales_quats() for g in slices]
+    keyed = KeyframedGaussians(
+        times=times, means=torch.stack([g.means for g in slices]), quats=torch.stack([q for _, q in sq]),
+        scales=torch.stack([s for s, _ in sq]), opacities=torch.stack([g.opacities for g in slices]),
+        sh=torch.stack([g.sh for g in slices]), sh_degree=1)
+    camera = orbit(20, 60, 1.6, fov_deg=45, width=96, height=96)
+    for model, t in ((native, 0.3), (keyed, 0.7)):
+        r = SplatRenderer(headless_context(), model)
+        try:
+            stats = r.render(camera, t, RenderSettings(mode="speed"))
+            gl = r.read_accumulation()[..., 0]
+        finally:
+            r.release()
+        g = model.slice(t)
+        speed = torch.linalg.vector_norm(g.velocities, dim=-1)
+        assert float(speed.max()) > 0.1 and float(speed.min()) < float(speed.max()) / 2
+        as_colour = replace(g, sh=((speed - 0.5) / SH_C0)[:, None, None].expand(-1, 1, 3).clone(), sh_degree=0)
+        with torch.no_grad():
+            ref = rasterize(as_colour, camera, (0.0, 0.0, 0.0)).rgb[..., 0].numpy()
+        top = float(speed.max())
+        assert ref.max() > 0.2 * top  # the image is not empty
+        assert psnr(gl / top, ref / top) >= MIN_PSNR
+        # the colour map runs from 0 to the model-wide typical speed (the same at every time)
+        assert stats.value_range == (0.0, typical_speed(model, to_arrays(model, t)))
+
+
 def test_point_and_quad_splats_agree_at_the_image_edges_and_large_splats_fall_back_to_quads():
     """Points are clipped by their centre and limited in size: splats centred off-screen must still reach in, and
     splats larger than the largest point must come out right with "auto" (drawn as quads)."""

@@ -86,6 +86,7 @@ def test_png_sequence_with_alpha_and_no_overwrite(ckpt, tmp_path, capsys):
     (["--out", "a.gif"], "unknown output format"),
     (["--path", "missing.json", "--out", "a.mp4"], "no such camera path"),
     (["--background", "purple", "--out", "a.png"], "background must be"),
+    (["--mode", "depth", "--map-range", "2,1", "--out", "a.png"], "--map-range needs LO < HI"),
 ])
 def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -155,6 +156,31 @@ def test_background_compositing_and_modes(model):
         assert np.abs(dc[..., :3] - clear[..., :3]).max() > 1e-3
     finally:
         r.release()
+
+
+def test_a_depth_video_keeps_one_colour_map_range_for_all_its_frames(model):
+    """Per-frame depth ranges would make a moving camera's depth video flicker: `render_frames` maps every frame
+    over the union of the sampled frames' ranges, and --map-range sets it by hand."""
+    from splat4d.viewer.headless import render_frames, sequence_depth_range
+
+    cams = [orbit(20, 30 + 10 * k, d, fov_deg=45, width=48, height=48) for k, d in enumerate((1.3, 1.6, 2.0, 2.6))]
+    times = [0.2, 0.4, 0.6, 0.8]
+    r = SplatRenderer(headless_context(), model)
+    try:
+        per_frame = [r.sort(c, t).depth_range for c, t in zip(cams, times)]
+        whole = sequence_depth_range(r, cams, times)
+    finally:
+        r.release()
+    assert whole == (min(n for n, _ in per_frame), max(f for _, f in per_frame))
+    assert whole != per_frame[0] and whole != per_frame[-1]
+    frames = list(render_frames(model, cams, times, RenderSettings(mode="depth")))
+    for k in (0, 3):
+        np.testing.assert_allclose(frames[k], render_image(model, cams[k], times[k],
+                                                           RenderSettings(mode="depth", value_range=whole)), atol=1e-6)
+        assert np.abs(frames[k] - render_image(model, cams[k], times[k], RenderSettings(mode="depth"))).max() > 0.05
+    fixed = list(render_frames(model, cams[:2], times[:2], RenderSettings(mode="depth", value_range=(1.0, 3.0))))
+    np.testing.assert_allclose(fixed[1], render_image(model, cams[1], times[1],
+                                                      RenderSettings(mode="depth", value_range=(1.0, 3.0))), atol=1e-6)
 
 
 def test_skipping_hidden_gaussians_keeps_the_image():

@@ -32,7 +32,7 @@ from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
 from .overlay import DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, Frustums, LineRenderer, path_segments
-from .renderer import COMPOSITE_ORDERS, RENDER_MODES, FrameStats, RenderSettings, SplatRenderer
+from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult
 from .trajectory import frame_model
 
@@ -525,6 +525,10 @@ class ViewerApp:
         imgui.separator_text("Look")
         _, mode = imgui.combo("mode", RENDER_MODES.index(s.mode), list(RENDER_MODES))
         s.mode = RENDER_MODES[mode]
+        if s.mode in VALUE_MODES:  # the colour map's legend
+            lo, hi = st.frame.value_range
+            imgui.text_wrapped(f"red = near ({lo:.3g}), blue = far ({hi:.3g})" if s.mode == "depth" else
+                               f"blue = still ({lo:.3g}), red = fast ({hi:.3g} units per unit of model time)")
         _, s.splat_scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f")
         max_deg = self.renderer.splats.sh_degree if self.renderer.splats is not None else 0
         deg = max_deg if s.sh_degree is None else min(s.sh_degree, max_deg)

@@ -1,6 +1,6 @@
 """Keyframed camera paths: the JSON file shared by the desktop app (record / save / load) and `splat4d render`.
 
-File format (``.json``; see docs/viewer.md)::
+File format (``.json``; README.md, "Camera path files")::
 
     {
       "format": "splat4d-camera-path", "version": 1,

@@ -1,12 +1,14 @@
 """Offline rendering through EGL (no display): a model, one camera and one model time per frame, to a file.
 
 Each frame is sorted synchronously at its own (camera, t) before it is drawn, so no frame ever shows a stale order.
+The depth mode's colour map spans one range for the whole sequence (`sequence_depth_range`), so colours do not
+flicker from frame to frame.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Iterator, Sequence
 
 import numpy as np
@@ -41,6 +43,8 @@ def render_frames(model, cameras: Sequence[Camera], times: Sequence[float], sett
         raise CameraError(f"{len(cameras)} cameras but {len(times)} scene times")
     settings = settings or RenderSettings()
     r = renderer or SplatRenderer(headless_context(), model)
+    if settings.mode == "depth" and settings.value_range is None and len(cameras) > 1:
+        settings = replace(settings, value_range=sequence_depth_range(r, cameras, times, settings.splat_scale))
     bar = tqdm(total=len(cameras), unit="frame", desc=progress if isinstance(progress, str) else "render",
                disable=not progress, dynamic_ncols=True)
     try:
@@ -55,6 +59,19 @@ def render_frames(model, cameras: Sequence[Camera], times: Sequence[float], sett
         bar.close()
         if renderer is None:
             r.release()
+
+
+#: `sequence_depth_range` looks at this many frames, evenly spaced.
+DEPTH_RANGE_SAMPLES = 8
+
+
+def sequence_depth_range(renderer: SplatRenderer, cameras: Sequence[Camera], times: Sequence[float],
+                         splat_scale: float = 1.0) -> tuple[float, float]:
+    """One (near, far) for the depth colour map of a whole sequence: the union of the per-frame ranges (the 2nd to
+    98th percentile of the drawn depths, `SortResult.depth_range`) of `DEPTH_RANGE_SAMPLES` frames."""
+    picks = np.unique(np.linspace(0, len(cameras) - 1, min(DEPTH_RANGE_SAMPLES, len(cameras))).round().astype(int))
+    ranges = [renderer.sort(cameras[i], float(times[i]), splat_scale).depth_range for i in picks]
+    return min(near for near, _ in ranges), max(far for _, far in ranges)
 
 
 def render_to_file(model, out: str | os.PathLike, cameras: Sequence[Camera], times: Sequence[float],

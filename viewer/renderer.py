@@ -40,9 +40,11 @@ from . import splats as splatlib
 from .sorting import SortKey, SortResult, depth_order
 
 #: Display modes, in the order of the app's combo box.
-RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers")
+RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers", "speed")
 _MODE_ALIASES = {"colour": "color", "rgb": "color", "centres": "centers", "points": "centers",
-                 "ellipsoids": "outlines", "ellipses": "outlines"}
+                 "ellipsoids": "outlines", "ellipses": "outlines", "velocity": "speed", "motion": "speed"}
+#: Modes that show a per-Gaussian value (camera depth, speed) through a colour map over `RenderSettings.value_range`.
+VALUE_MODES: tuple[str, ...] = ("depth", "speed")
 #: How splats are blended; both give the reference composite (see `SplatRenderer`).
 COMPOSITE_ORDERS: tuple[str, ...] = ("front-to-back", "back-to-front")
 #: Bytes of one pre-processed Gaussian (4 vec4: geometry, axes, colour, tile rectangle).
@@ -70,7 +72,7 @@ _QUAD_EXTRA_COST = 260.0
 #: At most this many alternating point/quad runs per batch; beyond, the batch is drawn as quads in one call.
 _MAX_RUNS = 16
 #: Modes drawn with points when the primitive allows; outlines and centres need the quad's own footprint.
-_POINT_MODES = ("color", "depth", "alpha")
+_POINT_MODES = ("color", "depth", "alpha", "speed")
 
 
 def parse_mode(name: str) -> str:
@@ -91,7 +93,10 @@ class RenderSettings:
         sh_degree: displayed SH degree (None = the model's).
         background: RGB in [0, 1] behind the splats.
         transparent: keep the background transparent (premultiplied colour + alpha) instead of compositing.
-        depth_range: (near, far) of the depth colour map; None = the 2nd-98th percentile of the drawn depths.
+        value_range: (low, high) of the colour map of the depth mode (near, far camera depth) and the speed mode
+            (slow, fast, in world units per unit of model time); None = the 2nd-98th percentile of the drawn
+            depths of each frame (`render_frames` fixes one range for a whole video), and 0 to the model's
+            `splats.typical_speed`.
         composite: "front-to-back" (under-blending in batches, pixels stop once their transmittance reaches
             TRANSMITTANCE_THRESHOLD, like the reference rasterizer) or "back-to-front" (over-blending, no early
             stop). Same image either way (to float rounding and the 1e-4 early-stop residue).
@@ -103,7 +108,7 @@ class RenderSettings:
     sh_degree: int | None = None
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     transparent: bool = False
-    depth_range: tuple[float, float] | None = None
+    value_range: tuple[float, float] | None = None
     composite: str = "front-to-back"
     primitive: str = "auto"
 
@@ -133,7 +138,8 @@ class FrameStats:
     drawn: int = 0
     total: int = 0
     resorted: bool = False
-    depth_range: tuple[float, float] = (0.0, 1.0)
+    #: the colour map's range in the depth and speed modes
+    value_range: tuple[float, float] = (0.0, 1.0)
 
     @property
     def frame_ms(self) -> float:
@@ -222,6 +228,7 @@ class SplatRenderer:
         """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`)."""
         arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
         self._model = model
+        self._typical_speed = splatlib.typical_speed(model, arrays)
         self._upload(arrays)
 
     def _upload(self, arrays: splatlib.SplatArrays) -> None:
@@ -355,7 +362,8 @@ class SplatRenderer:
             stats.resorted = order is not before
             stats.sort_ms = order.ms if stats.resorted else 0.0
         stats.visible = order.visible
-        stats.depth_range = settings.depth_range or order.depth_range
+        stats.value_range = settings.value_range or (
+            (0.0, self._typical_speed) if settings.mode == "speed" else order.depth_range)
 
         start = time.perf_counter()
         tg = self._ensure_targets((camera.width, camera.height))
@@ -363,7 +371,7 @@ class SplatRenderer:
         tg.accum_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if order.visible:
             stats.drawn = self._draw_splats(camera, t, settings, splats, order)
-        self._resolve(settings, stats.depth_range, target, viewport or (0, 0, camera.width, camera.height))
+        self._resolve(settings, stats.value_range, target, viewport or (0, 0, camera.width, camera.height))
         if sync:
             self.ctx.finish()
         stats.draw_ms = (time.perf_counter() - start) * 1e3
@@ -533,9 +541,9 @@ class SplatRenderer:
                       u_trans=w2c[:3, 3], u_campos=camera.position,
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
-                      u_scale=settings.splat_scale, u_sh_degree=degree, u_sh=0)
+                      u_scale=settings.splat_scale, u_sh_degree=degree, u_sh=0, u_speed=settings.mode == "speed")
 
-    def _resolve(self, settings: RenderSettings, depth_range, target, viewport) -> None:
+    def _resolve(self, settings: RenderSettings, value_range, target, viewport) -> None:
         tg = self._targets
         fbo = tg.display_fbo if target is None else target
         fbo.use()
@@ -547,7 +555,7 @@ class SplatRenderer:
         bg_alpha = 0.0 if settings.transparent else 1.0
         _set_uniforms(self._resolve_prog, u_accum=0, u_viewport=viewport, u_mode=RENDER_MODES.index(settings.mode),
                       u_background=tuple(float(c) * bg_alpha for c in settings.background) + (bg_alpha,),
-                      u_depth_range=depth_range)
+                      u_value_range=value_range)
         self._resolve_vao.render(self.ctx.TRIANGLES, vertices=3)
 
     # --- read-back --------------------------------------------------------------------------------------------

@@ -10,7 +10,9 @@ Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coeffic
 
     mean_t  [N, 4]  mean xyz (at the temporal mean), temporal mean mu_t
     motion  [N, 4]  velocity xyz (d mean / dt), 1 / (2 Sigma_tt)  (0: no temporal fade, e.g. a keyframed slice)
-    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), 0 (pads a whole vec4)
+    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), speed |d mean / dt| (world
+                    units per unit of model time; shown by the "speed" render mode, kept apart from `motion`
+                    so that a keyframed slice's speed does not move it)
     sh      [N, S]  the M x 3 colour coefficients flattened coefficient-major (r g b of coefficient 0, then 1, ...)
                     and zero-padded to S = 4 * ceil(3 M / 4) floats (whole RGBA texels)
 """
@@ -73,6 +75,10 @@ class SplatArrays:
     def opacity(self) -> np.ndarray:
         return self.cov[:, 6]
 
+    @property
+    def speed(self) -> np.ndarray:
+        return self.cov[:, 7]
+
     def nbytes(self) -> int:
         return sum(a.nbytes for a in (self.mean_t, self.motion, self.cov, self.sh))
 
@@ -91,13 +97,16 @@ def _pack_sh(coeffs: torch.Tensor) -> np.ndarray:
     return out
 
 
-def _pack_cov(cov3: torch.Tensor, opacity: torch.Tensor) -> np.ndarray:
-    """``[N, 3, 3]`` covariances + ``[N]`` opacities -> ``[N, 8]`` (upper triangle, opacity, 0)."""
+def _pack_cov(cov3: torch.Tensor, opacity: torch.Tensor, velocity: torch.Tensor | None) -> np.ndarray:
+    """``[N, 3, 3]`` covariances, ``[N]`` opacities, ``[N, 3]`` velocities (None: static) -> ``[N, 8]`` (upper
+    triangle, opacity, speed)."""
     n = cov3.shape[0]
     out = np.zeros((n, 8), np.float32)
     for k, (i, j) in enumerate(_COV_TRIU):
         out[:, k] = _np32(cov3[:, i, j])
     out[:, 6] = _np32(opacity)
+    if velocity is not None:
+        out[:, 7] = _np32(torch.linalg.vector_norm(velocity, dim=-1))
     return out
 
 
@@ -119,7 +128,7 @@ def from_gaussians4d(model: Gaussians4D) -> SplatArrays:
         motion = np.empty((n, 4), np.float32)
         motion[:, :3] = _np32(velocity)
         motion[:, 3] = _np32(0.5 / var_t)
-        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(cov3, m.opacities), sh=_pack_sh(m.sh_coeffs),
+        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(cov3, m.opacities, velocity), sh=_pack_sh(m.sh_coeffs),
                           sh_degree=m.sh_degree, sh_degree_t=m.sh_degree_t, duration=m.duration,
                           time_range=m.time_range)
     _check_finite("Gaussians4D", out.mean_t, out.motion, out.cov, out.sh)
@@ -127,7 +136,8 @@ def from_gaussians4d(model: Gaussians4D) -> SplatArrays:
 
 
 def from_gaussians3d(g: Gaussians3D, time: float, time_range: tuple[float, float] = (0.0, 1.0)) -> SplatArrays:
-    """Arrays of a 3D slice (static at `time`): no motion, no temporal fade; Gaussians not `visible` get opacity 0."""
+    """Arrays of a 3D slice (static at `time`): no motion, no temporal fade; Gaussians not `visible` get opacity 0.
+    The slice's `velocities` (when it has them) give only the speed column."""
     with torch.no_grad():
         n = len(g)
         mean_t = np.empty((n, 4), np.float32)
@@ -135,7 +145,7 @@ def from_gaussians3d(g: Gaussians3D, time: float, time_range: tuple[float, float
         mean_t[:, 3] = time
         motion = np.zeros((n, 4), np.float32)
         opacity = torch.where(g.visible.to(g.opacities.device), g.opacities, torch.zeros_like(g.opacities))
-        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(g.covariances.double(), opacity),
+        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(g.covariances.double(), opacity, g.velocities),
                           sh=_pack_sh(g.sh), sh_degree=g.sh_degree, sh_degree_t=0,
                           duration=float(time_range[1] - time_range[0]) or 1.0, time_range=tuple(time_range),
                           time=float(time))
@@ -147,6 +157,26 @@ def from_keyframed(model: KeyframedGaussians, t: float) -> SplatArrays:
     """Arrays of a keyframed model's slice at `t` (re-made whenever the displayed time changes)."""
     with torch.no_grad():
         return from_gaussians3d(model.slice(float(t)), float(t), model.time_range)
+
+
+#: The "speed" render mode maps 0 .. this quantile of a model's speeds to its colour map (a few fast outliers do
+#: not wash out the rest).
+SPEED_QUANTILE = 0.98
+
+
+def typical_speed(model, arrays: SplatArrays) -> float:
+    """The top of the "speed" colour map for a whole model (not per frame, so that colours mean the same at
+    every time): the `SPEED_QUANTILE` of its Gaussians' speeds. `arrays` are the model's (`to_arrays`): their speeds
+    for a native 4D model, valid at every time; a keyframed model's come from every key segment. 1 for a model
+    that does not move."""
+    if isinstance(model, KeyframedGaussians) and model.num_frames > 1:
+        with torch.no_grad():
+            means, times = model.means.detach().cpu().double(), model.times.detach().cpu().double()
+            speeds = (torch.linalg.vector_norm(means.diff(dim=0), dim=-1) / times.diff()[:, None]).numpy()
+    else:
+        speeds = arrays.speed
+    top = float(np.quantile(speeds, SPEED_QUANTILE)) if speeds.size else 0.0
+    return top if np.isfinite(top) and top > 0 else 1.0
 
 
 def needs_per_frame_upload(model) -> bool:

@@ -43,7 +43,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     c = p.add_argument_group("camera")
     c.add_argument("--trajectory", choices=("orbit", "spiral", "path"), default=None,
                    help="camera motion (default orbit; path when --path or --cameras is given)")
-    c.add_argument("--path", metavar="JSON", help="keyframed camera path file (see docs/viewer.md)")
+    c.add_argument("--path", metavar="JSON", help="keyframed camera path file (README: Camera path files)")
     c.add_argument("--cameras", metavar="DATASET",
                    help="use the cameras of a training dataset (D-NeRF layout folder or transforms json) as path")
     c.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
@@ -70,7 +70,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     s = p.add_argument_group("look")
     s.add_argument("--background", default=None,
                    help="white, black, grey, transparent, #rrggbb or r,g,b (default: the checkpoint's)")
-    s.add_argument("--mode", default="color", help="color, depth, alpha, outlines or centers (default color)")
+    s.add_argument("--mode", default="color", help="color, depth, alpha, outlines, centers or speed (default color)")
+    s.add_argument("--map-range", type=argtype(lambda s: parse_vector(s, 2, "--map-range")), default=None,
+                   metavar="LO,HI", help="ends of the colour map of --mode depth (near,far camera depth) or speed "
+                                         "(slow,fast in world units per unit of model time); default: the depths "
+                                         "seen over the video, 0 to the model's 98th-percentile speed")
     s.add_argument("--sh-degree", type=int, default=None, help="render at a lower SH degree")
     s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
     s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
@@ -96,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--frames must be at least 1, got {args.frames}")
     if args.path and args.cameras:
         raise OptionError("give either --path or --cameras, not both")
+    if args.map_range is not None and not args.map_range[0] < args.map_range[1]:
+        raise OptionError(f"--map-range needs LO < HI, got {args.map_range[0]:g},{args.map_range[1]:g}")
     if not 0 < args.fov < 180:
         raise OptionError(f"--fov must be in (0, 180) degrees, got {args.fov}")
     if output_kind(args.out) == "image":  # checked before any rendering: a still is one frame
@@ -108,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     model = ckpt.model
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                               background=bg if bg is not None else ckpt.background, transparent=transparent,
-                              composite=args.composite)
+                              composite=args.composite, value_range=args.map_range)
     width, height = args.size
 
     trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")

@@ -27,6 +27,17 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
+def keyframed(source, times) -> KeyframedGaussians:
+    """`source` (a native model) baked into keyframes at `times`, as the deformation importers do."""
+    times = torch.tensor(times)
+    slices = [source.slice(float(t)) for t in times]
+    sq = [g.scales_quats() for g in slices]
+    return KeyframedGaussians(
+        times=times, means=torch.stack([g.means for g in slices]), quats=torch.stack([q for _, q in sq]),
+        scales=torch.stack([s for s, _ in sq]), opacities=torch.stack([g.opacities for g in slices]),
+        sh=torch.stack([g.sh for g in slices]), sh_degree=source.sh_degree)
+
+
 def compare(model, camera, t, background=(0.1, 0.2, 0.3), composite="front-to-back", primitive="auto"):
     """(PSNR of rgb, max alpha error) between the GL renderer and the trainer's rasterizer."""
     r = SplatRenderer(headless_context(), model)
@@ -67,14 +78,7 @@ def test_gl_matches_rasterizer_for_the_bundled_sample():
 
 
 def test_gl_matches_rasterizer_for_a_keyframed_model():
-    source = synthetic_model(3000, seed=8, sh_degree=1, radius=0.4, scale=0.02)
-    times = torch.tensor([0.0, 0.4, 1.0])
-    slices = [source.slice(float(t)) for t in times]
-    sq = [g.scales_quats() for g in slices]
-    model = KeyframedGaussians(
-        times=times, means=torch.stack([g.means for g in slices]), quats=torch.stack([q for _, q in sq]),
-        scales=torch.stack([s for s, _ in sq]), opacities=torch.stack([g.opacities for g in slices]),
-        sh=torch.stack([g.sh for g in slices]), sh_degree=1)
+    model = keyframed(synthetic_model(3000, seed=8, sh_degree=1, radius=0.4, scale=0.02), (0.0, 0.4, 1.0))
     camera = orbit(15, 75, 1.7, fov_deg=45, width=96, height=96)
     for t in (0.2, 0.7):
         value, _ = compare(model, camera, t)
@@ -91,13 +95,7 @@ def test_speed_mode_accumulates_each_gaussians_speed_like_the_rasterizer_composi
     from splat4d.viewer.splats import to_arrays, typical_speed
 
     native = synthetic_model(3000, seed=5, sh_degree=1, radius=0.4, scale=0.02, speed=0.5)
-    times = torch.tensor([0.0, 0.5, 1.0])
-    slices = [native.slice(float(t)) for t in times]
-    sq = [g.scales_quats() for g in slices]
-    keyed = KeyframedGaussians(
-        times=times, means=torch.stack([g.means for g in slices]), quats=torch.stack([q for _, q in sq]),
-        scales=torch.stack([s for s, _ in sq]), opacities=torch.stack([g.opacities for g in slices]),
-        sh=torch.stack([g.sh for g in slices]), sh_degree=1)
+    keyed = keyframed(native, (0.0, 0.5, 1.0))
     camera = orbit(20, 60, 1.6, fov_deg=45, width=96, height=96)
     for model, t in ((native, 0.3), (keyed, 0.7)):
         r = SplatRenderer(headless_context(), model)

@@ -166,3 +166,55 @@ def test_framing_ignores_a_few_floaters():
     assert 0.8 < framing.radius < 0.9  # half the cube's diagonal, 0.87, less the outermost 0.5% per axis
     lo, hi = model_bounds(model)
     assert float(hi[0]) == pytest.approx(40.0) and float(lo[1]) == pytest.approx(-30.0)
+
+
+def nerfstudio_path(cameras, seconds: float, times=None, **extra) -> dict:
+    """A camera path as nerfstudio writes it (viewer "Export path", Blender add-on): row-major OpenGL c2w."""
+    frames = []
+    for i, cam in enumerate(cameras):
+        frame = {"camera_to_world": cam.to_opengl_c2w().ravel().tolist(), "fov": math.degrees(cam.fov_y),
+                 "aspect": cam.width / cam.height}
+        if times is not None:
+            frame["render_time"] = times[i]
+        frames.append(frame)
+    return {"camera_type": "perspective", "render_height": cameras[0].height, "render_width": cameras[0].width,
+            "seconds": seconds, "smoothness_value": 0.5, "is_cycle": False, "crop": None, "camera_path": frames,
+            **extra}
+
+
+def test_nerfstudio_camera_paths_load_frame_for_frame(tmp_path):
+    cams = [orbit(15 + 5 * i, 20 * i, 2.0 + 0.1 * i, fov_deg=35 + i, width=80, height=60) for i in range(6)]
+    data = nerfstudio_path(cams, 2.0, times=[i / 5 for i in range(6)])
+    data["camera_path"][2]["camera_to_world"] = (cams[2].to_opengl_c2w() @ np.diag([2.0, 2.0, 2.0, 1.0])).tolist()
+    f = tmp_path / "ns.json"
+    f.write_text(json.dumps(data))
+    path = CameraPath.load(f, time_range=(0.0, 10.0))
+    assert path.image_size == (80, 60) and path.fps == pytest.approx(3.0)  # 6 frames over 2 s
+    assert path_frame_count(path, path.fps) == 6
+    for i, cam in enumerate(cams):  # frame i at i / fps; a scaled matrix (Blender object scale) is normalised
+        got = path.camera(i / 3.0, 80, 60)
+        np.testing.assert_allclose(got.c2w, cam.c2w, atol=1e-9)
+        assert got.fy == pytest.approx(cam.fy)
+        assert path.scene_time(i / 3.0) == pytest.approx(10.0 * i / 5)  # render_time in [0, 1] -> model time
+    assert CameraPath.load(f).scene_time(1.0) == pytest.approx(0.6)  # without a model: as written
+    again = tmp_path / "again.json"
+    path.save(again)
+    assert CameraPath.load(again).image_size == (80, 60) and CameraPath.load(again).fps == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(camera_type="fisheye"), "only perspective"),
+    (lambda d: d.pop("render_height"), "missing 'render_height'"),
+    (lambda d: d["camera_path"][1].update(camera_to_world=(np.diag([1.0, 1.0, -1.0, 1.0])).ravel().tolist()),
+     "frame 1: camera_to_world has no proper rotation"),
+    (lambda d: d["camera_path"][0].pop("fov"), "frame 0: fov must be a finite number"),
+    (lambda d: d.update(seconds=0), "bad seconds or fps"),
+])
+def test_bad_nerfstudio_paths_raise_one_line_errors(tmp_path, edit, message):
+    data = nerfstudio_path([orbit(20, a, 2.0, width=64, height=48) for a in (0, 30)], 1.0)
+    edit(data)
+    f = tmp_path / "bad.json"
+    f.write_text(json.dumps(data))
+    with pytest.raises(CameraError, match=message) as exc:
+        CameraPath.load(f)
+    assert "nerfstudio camera path" in str(exc.value) and "\n" not in str(exc.value)

@@ -79,6 +79,23 @@ def test_png_sequence_with_alpha_and_no_overwrite(ckpt, tmp_path, capsys):
     assert main(args + ["--force"]) == 0
 
 
+def test_a_nerfstudio_camera_path_renders_its_frames_at_its_size_and_fps(model, ckpt, tmp_path, capsys):
+    import json
+
+    cams = [orbit(20, 15 * i, 1.7, fov_deg=40, width=48, height=36) for i in range(4)]
+    frames = [{"camera_to_world": c.to_opengl_c2w().ravel().tolist(), "fov": math.degrees(c.fov_y),
+               "render_time": i / 3} for i, c in enumerate(cams)]
+    (tmp_path / "ns.json").write_text(json.dumps({"camera_type": "perspective", "render_width": 48,
+                                                  "render_height": 36, "seconds": 0.5, "camera_path": frames}))
+    out = tmp_path / "frames"
+    assert main(["render", str(ckpt), "--out", str(out), "--path", str(tmp_path / "ns.json"), "--quiet"]) == 0
+    assert "4 frame(s) 48x36 at 8 fps" in capsys.readouterr().out  # the file's size, frame count and fps
+    for i in (0, 3):
+        png = cv2.imread(str(out / f"frame_{i:05d}.png"))[..., ::-1] / 255.0
+        want = render_image(model, cams[i], i / 3, RenderSettings(background=(1.0, 1.0, 1.0)))[..., :3]
+        assert np.abs(png - want).max() < 2.5 / 255  # the file's camera and render_time, frame for frame
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--size", "63x48", "--out", "odd.mp4"], "even width and height"),
     (["--background", "transparent", "--out", "a.mp4"], "no alpha channel"),

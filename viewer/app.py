@@ -230,7 +230,7 @@ class ViewerApp:
                 self._views = dataset_views(self.options.cameras, self.options.split)
                 self._update_frame_times()
             if self.options.camera_path:
-                self._path.path = CameraPath.load(self.options.camera_path)
+                self._path.path = CameraPath.load(self.options.camera_path, self.model.time_range)
                 self._path.file = self.options.camera_path
                 if self.options.play_path:
                     self._path.playing, self._path.time = True, self._path.path.start
@@ -568,7 +568,9 @@ class ViewerApp:
         imgui.text(f"{n} keyframe(s)" + (f", {pe.path.duration:.1f} s" if n else ""))
         _, pe.key_interval = imgui.slider_float("key spacing", pe.key_interval, 0.1, 5.0, "%.1f s")
         if imgui.button("Add key"):
-            width, height = self.options.size
+            import glfw
+
+            width, height = glfw.get_framebuffer_size(self._window)  # the window as it is now, maybe resized
             cam = self.controller.camera(width, height)
             time_at = pe.path.keys[-1].time + pe.key_interval if pe.path else 0.0
             key = CameraKey.from_camera(time_at, cam, self.playback.time)
@@ -586,7 +588,8 @@ class ViewerApp:
             self._attempt(lambda: pe.path.save(pe.file, force=pe.overwrite), f"saved camera path {pe.file}")
         imgui.same_line()
         if imgui.button("Load"):
-            self._attempt(lambda: setattr(pe, "path", CameraPath.load(pe.file)), f"loaded camera path {pe.file}")
+            self._attempt(lambda: setattr(pe, "path", CameraPath.load(pe.file, self.model.time_range)),
+                          f"loaded camera path {pe.file}")
         imgui.same_line()
         _, pe.overwrite = imgui.checkbox("overwrite", pe.overwrite)
         _, pe.show = imgui.checkbox("show path", pe.show)

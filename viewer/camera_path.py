@@ -24,6 +24,12 @@ Interpolation: position by a cubic Hermite spline with Catmull-Rom tangents scal
 through every key), orientation by slerp (`splat4d.quaternion.slerp`) between consecutive keys, fov and scene time
 linearly. A looping path adds a closing segment from the last key back to the first, lasting the mean key spacing.
 
+Optional top-level ``"image_size": [width, height]`` and ``"fps"`` say how the path is meant to be rendered
+(`splat4d render` uses them when ``--size`` / ``--fps`` are not given).
+
+`CameraPath.load` also reads **nerfstudio camera paths** (``ns-render --camera-path-filename``; written by the
+nerfstudio viewer's "Export path" and by the nerfstudio Blender add-on): `from_nerfstudio`.
+
 `path_from_dataset` turns the cameras of a training dataset (D-NeRF / Blender ``transforms_*.json``) into a path.
 """
 
@@ -40,7 +46,7 @@ import numpy as np
 import torch
 
 from splat4d import quaternion
-from splat4d.cameras import Camera, as_up, look_at_c2w, nerf_frame_camera
+from splat4d.cameras import Camera, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
 from splat4d.errors import CameraError
 from splat4d.fileio import atomic_write_bytes
 
@@ -162,6 +168,9 @@ class CameraPath:
     keys: list[CameraKey]
     up: str | tuple[float, float, float] = "z"
     loop: bool = False
+    #: how the path is meant to be rendered, when its file says: (width, height) and frames per second
+    image_size: tuple[int, int] | None = None
+    fps: float | None = None
     _times: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -260,18 +269,27 @@ class CameraPath:
     def with_key(self, key: CameraKey) -> "CameraPath":
         """A copy with `key` added (keys are kept sorted by time; a key at an existing time replaces it)."""
         keys = [k for k in self.keys if k.time != key.time] + [key]
-        return CameraPath(sorted(keys, key=lambda k: k.time), self.up, self.loop)
+        return CameraPath(sorted(keys, key=lambda k: k.time), self.up, self.loop, self.image_size, self.fps)
 
     # --- files ----------------------------------------------------------------------------------------------
     def to_json(self) -> dict:
         up = self.up if isinstance(self.up, str) else [float(x) for x in self.up]
-        return {"format": FORMAT_NAME, "version": FORMAT_VERSION, "up": up, "loop": self.loop,
-                "keyframes": [k.to_json() for k in self.keys]}
+        out = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "up": up, "loop": self.loop}
+        if self.image_size is not None:
+            out["image_size"] = list(self.image_size)
+        if self.fps is not None:
+            out["fps"] = self.fps
+        return {**out, "keyframes": [k.to_json() for k in self.keys]}
 
     @classmethod
-    def from_json(cls, data, source: str = "camera path") -> "CameraPath":
+    def from_json(cls, data, source: str = "camera path",
+                  time_range: tuple[float, float] | None = None) -> "CameraPath":
+        """A path from its JSON: splat4d's format, or nerfstudio's (`from_nerfstudio`; `time_range` maps its
+        normalised times)."""
         if not isinstance(data, dict):
             raise CameraError(f"{source}: expected a JSON object")
+        if "format" not in data and "camera_path" in data:
+            return cls.from_nerfstudio(data, source, time_range)
         if data.get("format", FORMAT_NAME) != FORMAT_NAME:
             raise CameraError(f"{source}: not a splat4d camera path (format {data.get('format')!r})")
         version = data.get("version", FORMAT_VERSION)
@@ -288,15 +306,84 @@ class CameraPath:
         up = up if isinstance(up, str) else tuple(float(x) for x in up)
         try:
             parsed = [_key_from_json(k, i, up) for i, k in enumerate(keys)]
-            return cls(parsed, up, bool(data.get("loop", False)))
+            size = data.get("image_size")
+            if size is not None:
+                size = tuple(int(x) for x in _vector(size, 2, "image_size"))
+                if min(size) < 1:
+                    raise CameraError(f"image_size must be positive, got {list(size)}")
+            fps = None if data.get("fps") is None else _number(data["fps"], "fps")
+            if fps is not None and not fps > 0:
+                raise CameraError(f"fps must be positive, got {fps}")
+            return cls(parsed, up, bool(data.get("loop", False)), size, fps)
         except CameraError as exc:
             raise CameraError(f"{source}: {exc}") from None
+
+    @classmethod
+    def from_nerfstudio(cls, data: dict, source: str = "camera path",
+                        time_range: tuple[float, float] | None = None) -> "CameraPath":
+        """nerfstudio's camera path JSON: ``render_width``/``render_height``, ``seconds`` (or ``fps``) and
+        ``camera_path``, a list of already interpolated frames, each with ``camera_to_world`` (16 numbers, row-major
+        4x4, OpenGL camera axes), ``fov`` (vertical, degrees) and, for dynamic scenes, ``render_time`` in [0, 1].
+
+        Every frame becomes a key; frame i sits at i / fps seconds (fps = frames / seconds, as ns-render plays it),
+        so rendering at the file's fps gives exactly its frames. ``render_time`` r becomes the scene time
+        t0 + r (t1 - t0) of `time_range` (r itself without one). Rotations are re-orthonormalised (a Blender camera
+        with a scale has a scaled matrix). Only the perspective camera type exists here."""
+        def fail(message: str):
+            raise CameraError(f"{source}: nerfstudio camera path: {message}")
+
+        kind = data.get("camera_type", "perspective")
+        if kind != "perspective":
+            fail(f"camera_type {kind!r} is not supported (only perspective)")
+        try:
+            size = (int(_number(data["render_width"], "render_width")),
+                    int(_number(data["render_height"], "render_height")))
+        except KeyError as exc:
+            fail(f"missing {exc}")
+        except CameraError as exc:
+            fail(str(exc))
+        frames = data["camera_path"]
+        if not isinstance(frames, list) or not frames or min(size) < 1:
+            fail("'camera_path' must be a non-empty list of frames and the render size positive")
+        try:
+            if data.get("seconds") is not None:
+                fps = len(frames) / _number(data["seconds"], "seconds")
+            else:
+                fps = _number(data.get("fps", 30.0), "fps")
+        except (CameraError, ZeroDivisionError) as exc:
+            fail(f"bad seconds or fps ({exc})")
+        if not (math.isfinite(fps) and fps > 0):
+            fail("seconds and fps must be positive")
+        timed = all(isinstance(f, dict) and f.get("render_time") is not None for f in frames)
+        keys = []
+        for i, f in enumerate(frames):
+            try:
+                if not isinstance(f, dict):
+                    raise CameraError(f"must be an object, got {type(f).__name__}")
+                c2w = opengl_to_opencv(_vector(np.ravel(np.asarray(f.get("camera_to_world"), dtype=object)), 16,
+                                               "camera_to_world").reshape(4, 4))
+                u, sv, vt = np.linalg.svd(c2w[:3, :3])
+                if sv.min() < 1e-9 or np.linalg.det(u @ vt) < 0:
+                    raise CameraError("camera_to_world has no proper rotation (singular or mirrored)")
+                fov = _number(f.get("fov"), "fov")
+                if not 0 < fov < 180:
+                    raise CameraError(f"fov must be in (0, 180) degrees, got {fov}")
+                scene_time = None
+                if timed:
+                    r = _number(f["render_time"], "render_time")
+                    scene_time = r if time_range is None else time_range[0] + r * (time_range[1] - time_range[0])
+            except CameraError as exc:
+                fail(f"frame {i}: {exc}")
+            keys.append(CameraKey(i / fps, c2w[:3, 3].copy(), rotation_to_quaternion(u @ vt), fov, scene_time))
+        return cls(keys, "z", False, size, fps)
 
     def save(self, path: str | os.PathLike, force: bool = False) -> Path:
         return atomic_write_bytes(path, (json.dumps(self.to_json(), indent=2) + "\n").encode(), force)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "CameraPath":
+    def load(cls, path: str | os.PathLike, time_range: tuple[float, float] | None = None) -> "CameraPath":
+        """Read a path file (splat4d's or nerfstudio's; `time_range`: the model's, for nerfstudio's normalised
+        times)."""
         path = Path(path)
         if not path.is_file():
             raise CameraError(f"{path}: no such camera path file")
@@ -304,7 +391,7 @@ class CameraPath:
             data = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             raise CameraError(f"{path}: not a readable JSON camera path ({exc})") from None
-        return cls.from_json(data, str(path))
+        return cls.from_json(data, str(path), time_range)
 
 
 # --- training dataset cameras ----------------------------------------------------------------------------------

@@ -22,6 +22,10 @@ examples:
 """
 
 
+DEFAULT_SIZE = (1280, 720)
+DEFAULT_FPS = 30.0
+
+
 def add_args(p: argparse.ArgumentParser) -> None:
     from splat4d.viewer.options import argtype, parse_size, parse_vector
 
@@ -31,9 +35,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="output: .mp4, .png, .exr, or a folder name for a frame sequence")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     g = p.add_argument_group("frames")
-    g.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
-                   help="image size in pixels (default 1280x720; even for .mp4)")
-    g.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    g.add_argument("--size", type=argtype(parse_size), default=None, metavar="WxH",
+                   help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4)")
+    g.add_argument("--fps", type=float, default=None,
+                   help="frames per second (default: the camera path file's, else 30)")
     g.add_argument("--frames", type=int, default=None,
                    help="number of frames (default: 1 for a .png/.exr image, else --seconds x --fps, or the whole "
                         "camera path)")
@@ -94,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
                                            scene_times)
 
-    if not args.fps > 0:
+    if args.fps is not None and not args.fps > 0:
         raise OptionError(f"--fps must be positive, got {args.fps}")
     if args.frames is not None and args.frames < 1:
         raise OptionError(f"--frames must be at least 1, got {args.frames}")
@@ -115,21 +120,24 @@ def run(args: argparse.Namespace) -> int:
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                               background=bg if bg is not None else ckpt.background, transparent=transparent,
                               composite=args.composite, value_range=args.map_range)
-    width, height = args.size
 
     trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")
     path = None
     if trajectory == "path":
         if args.path:
-            path = CameraPath.load(args.path)
+            path = CameraPath.load(args.path, time_range=model.time_range)
         elif args.cameras:
             path = path_from_dataset(args.cameras, args.split, args.seconds_per_key, args.up)
         else:
             raise OptionError("--trajectory path needs --path FILE or --cameras DATASET")
-        frames = args.frames or path_frame_count(path, args.fps)
-        cameras = path_cameras(path, frames, args.fps, width, height)
+    # a path file may say how it is meant to be rendered (a nerfstudio path always does)
+    width, height = args.size or (path is not None and path.image_size) or DEFAULT_SIZE
+    fps = args.fps or (path is not None and path.fps) or DEFAULT_FPS
+    if path is not None:
+        frames = args.frames or path_frame_count(path, fps)
+        cameras = path_cameras(path, frames, fps, width, height)
     else:
-        frames = args.frames or max(1, int(round(args.seconds * args.fps)))
+        frames = args.frames or max(1, int(round(args.seconds * fps)))
         framing = frame_model(model)
         target = framing.center if args.target is None else args.target
         distance = args.distance or framing.distance(args.fov)
@@ -142,17 +150,17 @@ def run(args: argparse.Namespace) -> int:
                 else "loop")
     if args.time is not None and mode != "hold":
         raise OptionError(f"--time sets the held time; it does not apply to --time-mode {mode}")
-    times = scene_times(mode, frames, args.fps, model.time_range, args.loop_seconds, args.time, path)
+    times = scene_times(mode, frames, fps, model.time_range, args.loop_seconds, args.time, path)
     if mode == "path" and path is None:
         raise CameraError("--time-mode path needs --path or --cameras")
 
-    summary = render_to_file(model, args.out, cameras, times, settings, args.fps, args.image_format, args.force,
+    summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
                              progress=False if args.quiet else "render", crf=args.crf)
     import statistics
 
     median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)
     print(f"wrote {args.out}: {summary.frames} frame(s) {width}x{height}"
-          + (f" at {args.fps:g} fps" if summary.frames > 1 else "")
+          + (f" at {fps:g} fps" if summary.frames > 1 else "")
           + f", {len(model):,} Gaussians, median sort {median(summary.sort_ms):.1f} ms + draw "
             f"{median(summary.draw_ms):.1f} ms per frame")
     return 0

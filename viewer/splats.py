@@ -128,9 +128,9 @@ def from_gaussians4d(model: Gaussians4D) -> SplatArrays:
         motion = np.empty((n, 4), np.float32)
         motion[:, :3] = _np32(velocity)
         motion[:, 3] = _np32(0.5 / var_t)
-        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(cov3, m.opacities, velocity), sh=_pack_sh(m.sh_coeffs),
-                          sh_degree=m.sh_degree, sh_degree_t=m.sh_degree_t, duration=m.duration,
-                          time_range=m.time_range)
+        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(cov3, m.opacities, velocity),
+                          sh=_pack_sh(m.sh_coeffs), sh_degree=m.sh_degree, sh_degree_t=m.sh_degree_t,
+                          duration=m.duration, time_range=m.time_range)
     _check_finite("Gaussians4D", out.mean_t, out.motion, out.cov, out.sh)
     return out
 

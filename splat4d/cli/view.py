@@ -32,7 +32,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
     p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
     p.add_argument("--background", default=None, help="white, black, grey, #rrggbb or r,g,b (default: the checkpoint's)")
-    p.add_argument("--mode", default="color", help="color, depth, alpha, outlines, centers or speed (default color)")
+    p.add_argument("--mode", default="color",
+                   help="color, depth, alpha, outlines, centers or speed (default color)")
     p.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
     p.add_argument("--sh-degree", type=int, default=None, help="display at a lower SH degree")
     p.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
@@ -88,8 +89,8 @@ def run(args: argparse.Namespace) -> int:
                           composite=args.composite, background=bg or (0.0, 0.0, 0.0))
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
-                         split=args.split, camera_path=args.path, play_path=args.play_path, screenshot_dir=args.screenshot_dir,
-                         vsync=not args.no_vsync, render_scale=args.render_scale,
+                         split=args.split, camera_path=args.path, play_path=args.play_path,
+                         screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
                          adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
                          screenshot=args.screenshot, report=args.report, force=args.force)
     # fail with a one-line error before opening a window

@@ -33,7 +33,7 @@ from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
 from .overlay import DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, Frustums, LineRenderer, path_segments
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
-from .sorting import AsyncSorter, SortKey, SortResult
+from .sorting import AsyncSorter, SortKey, SortResult, view_key
 from .trajectory import frame_model
 
 
@@ -225,10 +225,9 @@ class ViewerApp:
 
         self._init_window()
         try:
-            self.load(self._source)
-            if self.options.cameras:
+            if self.options.cameras:  # before the model: `load` steps frames through these views' times
                 self._views = dataset_views(self.options.cameras, self.options.split)
-                self._update_frame_times()
+            self.load(self._source)
             if self.options.camera_path:
                 self._path.path = CameraPath.load(self.options.camera_path, self.model.time_range)
                 self._path.file = self.options.camera_path
@@ -331,7 +330,7 @@ class ViewerApp:
         window_camera, t = self._current_view(width, height)
         camera = window_camera
         screenshot = self._screenshot_request
-        pose = (np.asarray(camera.w2c).tobytes(), camera.fx, camera.fy, camera.cx, camera.cy)
+        pose = view_key(window_camera)
         moving, self._last_pose = pose != self._last_pose and self._last_pose is not None, pose
         scale = 1.0 if screenshot else self.resolution.choose(moving, width, height)
         if scale != 1.0:

@@ -188,6 +188,7 @@ class SplatRenderer:
         self._pre_progs: dict[tuple, object] = {}
         self._targets: _Targets | None = None
         self._model = None
+        self._typical_speed: float | None = None
         self.splats: splatlib.SplatArrays | None = None
         self._gpu_n = 0
         self._order: SortResult | None = None
@@ -228,8 +229,15 @@ class SplatRenderer:
         """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`)."""
         arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
         self._model = model
-        self._typical_speed = splatlib.typical_speed(model, arrays)
+        self._typical_speed = None  # the speed mode's colour map top, made on first use (`typical_speed`)
         self._upload(arrays)
+
+    def typical_speed(self) -> float:
+        """The model's `splats.typical_speed` (the speed mode's default colour map top), computed once per model
+        and only when the speed mode asks (a keyframed model's runs over every key segment)."""
+        if self._typical_speed is None:
+            self._typical_speed = splatlib.typical_speed(self._model, self.splats)
+        return self._typical_speed
 
     def _upload(self, arrays: splatlib.SplatArrays) -> None:
         ctx = self.ctx
@@ -363,7 +371,7 @@ class SplatRenderer:
             stats.sort_ms = order.ms if stats.resorted else 0.0
         stats.visible = order.visible
         stats.value_range = settings.value_range or (
-            (0.0, self._typical_speed) if settings.mode == "speed" else order.depth_range)
+            (0.0, self.typical_speed()) if settings.mode == "speed" else order.depth_range)
 
         start = time.perf_counter()
         tg = self._ensure_targets((camera.width, camera.height))

@@ -48,8 +48,13 @@ class SortKey:
 
     @classmethod
     def of(cls, camera: Camera, t: float, scale: float = 1.0) -> "SortKey":
-        return cls(np.asarray(camera.w2c, np.float64).tobytes(),
-                   (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height), float(t), float(scale))
+        return cls(*view_key(camera), float(t), float(scale))
+
+
+def view_key(camera: Camera) -> tuple[bytes, tuple[float, float, float, float, int, int]]:
+    """What a camera's view is, comparable with ==: its w2c bytes and (fx, fy, cx, cy, width, height)."""
+    return (np.asarray(camera.w2c, np.float64).tobytes(),
+            (camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height))
 
 
 @dataclass(eq=False)

@@ -1,4 +1,4 @@
-"""Headless rendering: ``splat4d render`` to mp4 / EXR / PNG, compositing and alpha, render modes, errors."""
+"""Headless rendering: ``splat4d render`` to mp4 / mov / webm / EXR / PNG, compositing and alpha, render modes, errors."""
 
 from __future__ import annotations
 
@@ -96,9 +96,80 @@ def test_a_nerfstudio_camera_path_renders_its_frames_at_its_size_and_fps(model, 
         assert np.abs(png - want).max() < 2.5 / 255  # the file's camera and render_time, frame for frame
 
 
+def decode_rgba(path: Path) -> tuple[list[np.ndarray], object]:
+    """Every frame of a video as float RGBA in [0, 1] (straight alpha; 1 where the video has none), and its
+    stream. VP9 alpha lives in side data that only libvpx's decoder reads, not FFmpeg's native one."""
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        if stream.codec_context.name == "vp9":
+            decoder = av.CodecContext.create("libvpx-vp9", "r")
+            frames = [f for packet in container.demux(stream) for f in decoder.decode(packet)]
+        else:
+            frames = list(container.decode(stream))
+        return [f.to_ndarray(format="rgba64le").astype(np.float64) / 65535.0 for f in frames], stream
+
+
+@pytest.mark.parametrize("suffix, codec, pix_fmt, tolerance", [
+    (".mp4", "h264", "yuv420p", 3.5 / 255),
+    (".mov", "prores", "yuv422p10le", 1.5 / 255),
+    (".webm", "vp9", "yuv420p", 3.5 / 255),
+])
+def test_videos_keep_the_colours_and_say_bt709(tmp_path, suffix, codec, pix_fmt, tolerance):
+    """Saturated colour bars survive the RGB -> YUV -> RGB trip through every video format: the file is converted
+    and tagged with one matrix (BT.709), so a decoder that follows the tags gets the colours back (the untagged
+    BT.601 files of before decoded pure green as 0,215,0 in a BT.709 player)."""
+    from splat4d.viewer.output import open_output
+
+    bars = np.zeros((32, 64, 4), np.float32)
+    bars[..., 3] = 1.0
+    for k, colour in enumerate([(1, 0, 0), (0, 1, 0), (0, 0, 1), (0.8, 0.5, 0.15)]):
+        bars[:, 16 * k:16 * (k + 1), :3] = colour
+    out = tmp_path / f"bars{suffix}"
+    with open_output(out, 64, 32, 24.0) as writer:
+        for _ in range(3):
+            writer.write(bars)
+    frames, stream = decode_rgba(out)
+    cc = stream.codec_context
+    assert (cc.name, cc.pix_fmt, cc.colorspace, cc.color_primaries, cc.color_trc) == (codec, pix_fmt, 1, 1, 1)
+    assert len(frames) == 3 and stream.average_rate == 24
+    for k in range(4):  # bar centres (4:2:0 chroma blurs the bars' edges)
+        got = frames[1][8:24, 16 * k + 4:16 * k + 12, :3].reshape(-1, 3)
+        assert np.abs(got - bars[0, 16 * k + 8, :3]).max() < tolerance
+
+
+@pytest.mark.parametrize("suffix, colour_error", [(".mov", 0.005), (".webm", 0.06)])
+def test_transparent_videos_keep_alpha(model, ckpt, tmp_path, suffix, colour_error):
+    """ProRes 4444 and VP9 carry the alpha channel of a transparent background (straight alpha, as players
+    expect): it matches the headless render's, and so does the colour wherever the object covers the pixel
+    (VP9 less closely: 4:2:0 chroma over a 64x48 image of 4,000 small Gaussians)."""
+    out = tmp_path / f"clip{suffix}"
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--fps", "10", "--frames", "3",
+                 "--background", "transparent", "--time", "0.5", "--azimuth", "30", "--quiet"]) == 0
+    frames, stream = decode_rgba(out)
+    assert len(frames) == 3 and (stream.width, stream.height) == (64, 48) and stream.average_rate == 10
+    if suffix == ".mov":
+        assert stream.codec_context.pix_fmt == "yuva444p12le"  # 4444 profile: alpha in the stream
+    else:
+        assert stream.metadata.get("alpha_mode") == "1"  # WebM's flag that browsers look for
+    from splat4d.viewer.output import unpremultiply
+    from splat4d.viewer.trajectory import frame_model, orbit_cameras
+
+    framing = frame_model(model)
+    cam = orbit_cameras(3, 64, 48, framing.center, framing.distance(40.0), 20.0, 40.0, "z", 1.0, 30.0)[0]
+    want = unpremultiply(render_image(model, cam, 0.5, RenderSettings(transparent=True)))
+    got = frames[0]
+    assert got[0, 0, 3] < 0.02 and got[..., 3].max() > 0.9  # transparent corner, opaque object
+    assert np.abs(got[..., 3] - want[..., 3]).mean() < 0.005
+    solid = want[..., 3] > 0.5
+    assert np.abs(got[..., :3] - want[..., :3])[solid].mean() < colour_error
+
+
 @pytest.mark.parametrize("extra, message", [
     (["--size", "63x48", "--out", "odd.mp4"], "even width and height"),
     (["--background", "transparent", "--out", "a.mp4"], "no alpha channel"),
+    (["--size", "63x48", "--out", "odd.webm"], "VP9 video needs an even width and height"),
+    (["--crf", "70", "--out", "a.webm"], "--crf for VP9 goes from 0 (best) to 63"),
+    (["--crf", "20", "--out", "a.mov"], "ProRes has no --crf"),
     (["--mode", "sparkle", "--out", "a.png"], "unknown render mode"),
     (["--out", "a.gif"], "unknown output format"),
     (["--path", "missing.json", "--out", "a.mp4"], "no such camera path"),

@@ -76,8 +76,8 @@ def sequence_depth_range(renderer: SplatRenderer, cameras: Sequence[Camera], tim
 
 def render_to_file(model, out: str | os.PathLike, cameras: Sequence[Camera], times: Sequence[float],
                    settings: RenderSettings | None = None, fps: float = 30.0, image_format: str = "png",
-                   force: bool = False, progress: bool | str = False, crf: int = 18) -> RenderSummary:
-    """Render every frame and write them to `out` (.mp4, .png/.exr image, or a folder of frames)."""
+                   force: bool = False, progress: bool | str = False, crf: int | None = None) -> RenderSummary:
+    """Render every frame and write them to `out` (.mp4/.mov/.webm video, .png/.exr image, or a folder of frames)."""
     if not cameras:
         raise CameraError("nothing to render: no frames")
     settings = settings or RenderSettings()

@@ -1,12 +1,20 @@
-"""Writers for rendered frames: H.264 video (PyAV), PNG sequences (OpenCV), EXR with alpha (OpenImageIO).
+"""Writers for rendered frames: videos (PyAV), PNG sequences (OpenCV), EXR with alpha (OpenImageIO).
 
 Frames arrive as the renderer's display images: ``[H, W, 4]`` float32 RGBA, top row first, colour premultiplied
 by alpha (alpha is 1 everywhere over an opaque background). What each format stores:
 
-* ``.mp4``: H.264, yuv420p (even width and height required), 8-bit, opaque. No alpha channel.
+* ``.mp4``: H.264 (libx264), yuv420p 8-bit, opaque (no alpha channel; even width and height).
+* ``.mov``: Apple ProRes (prores_ks), 10-bit: 422 HQ over an opaque background, 4444 with an alpha channel over a
+  transparent one: the intermediate that editors and compositors (Resolve, Premiere, After Effects, Nuke) read.
+* ``.webm``: VP9 (libvpx), yuv420p, or yuva420p with alpha over a transparent background, which browsers play
+  as a transparent video (even width and height).
 * ``.png`` (a single image, or a folder of ``frame_00000.png``...): 8-bit RGB, or RGBA with *straight* alpha
   (colour divided by alpha, the PNG convention) when the background is transparent.
 * ``.exr`` (single image or folder): half-float RGBA, *premultiplied* alpha (the OpenEXR convention), no clamping.
+
+Video alpha is straight, as ffmpeg and the players expect. Every video is converted to YUV with the BT.709 matrix
+and tagged BT.709 (primaries, transfer, matrix, limited range), so players show the rendered sRGB colours as they
+are instead of guessing the matrix of an untagged file.
 
 Every output is written atomically (`splat4d.fileio`) and an existing one is refused without ``force``.
 """
@@ -16,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import os
 from fractions import Fraction
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -24,12 +33,41 @@ import numpy as np
 from splat4d.errors import Splat4DError
 from splat4d.fileio import atomic_dir, atomic_path, check_writable
 
-VIDEO_SUFFIXES = (".mp4",)
 IMAGE_SUFFIXES = (".png", ".exr")
 
 
 class OutputError(Splat4DError):
     """An output file name, format or size that cannot be written."""
+
+
+@dataclass(frozen=True)
+class VideoFormat:
+    """How one video suffix is encoded (PyAV container and codec names)."""
+
+    name: str                     # what users call it, for messages
+    container: str
+    codec: str
+    pix_fmt: str                  # over an opaque background
+    alpha_pix_fmt: str | None     # over a transparent one; None: the codec has no alpha
+    options: tuple[tuple[str, str], ...] = ()
+    opaque_options: tuple[tuple[str, str], ...] = ()
+    alpha_options: tuple[tuple[str, str], ...] = ()
+    max_crf: int | None = None    # the codec's constant-quality scale 0..max_crf; None: no such setting
+    even_size: bool = True        # 4:2:0 chroma needs an even width and height
+    deep: bool = False            # more than 8 bits per channel: feed it 16-bit RGB
+
+
+VIDEO_FORMATS: dict[str, VideoFormat] = {
+    ".mp4": VideoFormat("H.264", "mp4", "libx264", "yuv420p", None, (("preset", "medium"),), max_crf=51),
+    # profile 3 = 422 HQ, 4 = 4444; the encoder's own bit-rate control (no crf)
+    ".mov": VideoFormat("ProRes", "mov", "prores_ks", "yuv422p10le", "yuva444p10le", (("vendor", "apl0"),),
+                        (("profile", "3"),), (("profile", "4"), ("alpha_bits", "16")), even_size=False, deep=True),
+    # b=0: constant quality; cpu-used 4 with row threads: a fraction of the default's encode time
+    ".webm": VideoFormat("VP9", "webm", "libvpx-vp9", "yuv420p", "yuva420p",
+                         (("b", "0"), ("deadline", "good"), ("cpu-used", "4"), ("row-mt", "1")), max_crf=63),
+}
+VIDEO_SUFFIXES = tuple(VIDEO_FORMATS)
+DEFAULT_CRF = 18
 
 
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -84,25 +122,60 @@ def write_image(path: str | os.PathLike, rgba: np.ndarray, alpha: bool) -> None:
         raise OutputError(f"{path}: unknown image format (use .png or .exr)")
 
 
-class VideoWriter:
-    """H.264 mp4 writer (PyAV, libx264, yuv420p)."""
+def video_format(out: str | os.PathLike, width: int, height: int, transparent: bool = False,
+                 crf: int | None = None) -> VideoFormat:
+    """The `VideoFormat` for video file `out`, after checking that it can hold these frames (one-line
+    `OutputError` otherwise): before anything is rendered."""
+    fmt = VIDEO_FORMATS.get(Path(out).suffix.lower())
+    if fmt is None:
+        raise OutputError(f"{out}: not a video name (use {', '.join(VIDEO_SUFFIXES)})")
+    if transparent and fmt.alpha_pix_fmt is None:
+        raise OutputError(f"{out}: {fmt.name} video has no alpha channel; for a transparent background write "
+                          ".mov (ProRes 4444), .webm (VP9) or PNG/EXR frames")
+    if fmt.even_size and (width % 2 or height % 2):
+        raise OutputError(f"{fmt.name} video needs an even width and height, got {width}x{height}")
+    if crf is not None:
+        if fmt.max_crf is None:
+            raise OutputError(f"{out}: {fmt.name} has no --crf quality scale (it uses the 422 HQ / 4444 profiles)")
+        if not 0 <= crf <= fmt.max_crf:
+            raise OutputError(f"--crf for {fmt.name} goes from 0 (best) to {fmt.max_crf}, got {crf}")
+    return fmt
 
-    def __init__(self, path: str | os.PathLike, width: int, height: int, fps: float, crf: int = 18) -> None:
+
+class VideoWriter:
+    """One video file (`VIDEO_FORMATS`, by suffix; `video_format` checks the arguments)."""
+
+    def __init__(self, path: str | os.PathLike, width: int, height: int, fps: float, crf: int | None = None,
+                 transparent: bool = False) -> None:
         import av
 
-        if width % 2 or height % 2:
-            raise OutputError(f"H.264 video needs an even width and height, got {width}x{height}")
-        self.container = av.open(str(path), mode="w", format="mp4")
-        rate = Fraction(fps).limit_denominator(1001)
-        self.stream = self.container.add_stream("libx264", rate=rate)
+        self.format = fmt = video_format(path, width, height, transparent, crf)
+        self.alpha = transparent
+        self.container = av.open(str(path), mode="w", format=fmt.container)
+        self.stream = self.container.add_stream(fmt.codec, rate=Fraction(fps).limit_denominator(1001))
         self.stream.width, self.stream.height = width, height
-        self.stream.pix_fmt = "yuv420p"
-        self.stream.options = {"crf": str(int(crf)), "preset": "medium"}
+        self.stream.pix_fmt = fmt.alpha_pix_fmt if transparent else fmt.pix_fmt
+        options = dict(fmt.options + (fmt.alpha_options if transparent else fmt.opaque_options))
+        if fmt.max_crf is not None:
+            options["crf"] = str(DEFAULT_CRF if crf is None else int(crf))
+        self.stream.options = options
+        codec = self.stream.codec_context  # BT.709, limited range: what the frames are converted with (write)
+        codec.colorspace = codec.color_primaries = codec.color_trc = 1  # AVCOL_*_BT709
+        codec.color_range = 1  # AVCOL_RANGE_MPEG
 
     def write(self, rgba: np.ndarray) -> None:
         import av
 
-        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(to_uint8(rgba[..., :3])), format="rgb24")
+        pixels = unpremultiply(rgba) if self.alpha else rgba[..., :3]
+        if self.format.deep:
+            data = (np.clip(pixels, 0.0, 1.0) * 65535.0 + 0.5).astype(np.uint16)
+            layout = "rgba64le" if self.alpha else "rgb48le"
+        else:
+            data, layout = to_uint8(pixels), "rgba" if self.alpha else "rgb24"
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(data), format=layout)
+        frame = frame.reformat(format=self.stream.pix_fmt, dst_colorspace="ITU709")
+        # the frame's tags too: ProRes writes them into every frame header, which decoders read over the file's
+        frame.colorspace = frame.color_primaries = frame.color_trc = frame.color_range = 1
         for packet in self.stream.encode(frame):
             self.container.mux(packet)
 
@@ -151,18 +224,22 @@ def output_kind(out: str | os.PathLike) -> str:
     if suffix in IMAGE_SUFFIXES:
         return "image"
     if suffix:
-        raise OutputError(f"{out}: unknown output format {suffix!r} (use .mp4, .png, .exr, or a folder name)")
+        raise OutputError(f"{out}: unknown output format {suffix!r} (use {', '.join(VIDEO_SUFFIXES)}, .png, .exr, "
+                          "or a folder name)")
     return "sequence"
 
 
 @contextlib.contextmanager
 def open_output(out: str | os.PathLike, width: int, height: int, fps: float, transparent: bool = False,
-                image_format: str = "png", force: bool = False, crf: int = 18, frames: int | None = None) -> Iterator:
+                image_format: str = "png", force: bool = False, crf: int | None = None,
+                frames: int | None = None) -> Iterator:
     """Yield a writer with ``write(rgba)`` for `out`; the output appears (atomically) only if the block succeeds.
 
     Args:
-        out: ``.mp4`` video, ``.png`` / ``.exr`` single image, or a folder name for a frame sequence.
-        transparent: frames have a transparent background (PNG keeps alpha; mp4 refuses).
+        out: ``.mp4`` / ``.mov`` / ``.webm`` video, ``.png`` / ``.exr`` single image, or a folder name for a frame
+            sequence.
+        transparent: frames have a transparent background (PNG, EXR, .mov and .webm keep alpha; .mp4 refuses).
+        crf: constant-quality setting of .mp4 / .webm (default `DEFAULT_CRF`); .mov refuses it.
         image_format: "png" or "exr", for sequences.
         frames: how many frames will come, if known: a single image refuses more than one before any is drawn.
     """
@@ -171,13 +248,9 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
     if kind == "image" and frames is not None and frames > 1:
         raise OutputError(f"{out}: a single image takes one frame, not {frames}; use a folder for a sequence")
     if kind == "video":
-        if transparent:
-            raise OutputError(f"{out}: H.264 video has no alpha channel; write PNG or EXR frames for a "
-                              f"transparent background")
-        if width % 2 or height % 2:
-            raise OutputError(f"H.264 video needs an even width and height, got {width}x{height}")
+        video_format(out, width, height, transparent, crf)
         with atomic_path(path, force) as tmp:
-            writer = VideoWriter(tmp, width, height, fps, crf)
+            writer = VideoWriter(tmp, width, height, fps, crf, transparent)
             try:
                 yield writer
             finally:

@@ -5,17 +5,19 @@ from __future__ import annotations
 import argparse
 
 ORDER = 45
-HELP = "render a model to an .mp4, PNG/EXR frames or one image, headless (orbit, spiral or camera path)"
+HELP = "render a model to a video (.mp4/.mov/.webm), PNG/EXR frames or one image, headless (orbit, spiral, path)"
 DESCRIPTION = """Render a model offscreen (EGL; no display needed) along a camera trajectory.
 
-Output by name: FILE.mp4 (H.264), FILE.png / FILE.exr (one image; EXR keeps alpha), or a folder name without a
-suffix (numbered frames, --image-format png|exr). Existing outputs are kept unless --force.
+Output by name: FILE.mp4 (H.264), FILE.mov (ProRes 422 HQ; 4444 with alpha), FILE.webm (VP9, alpha too),
+FILE.png / FILE.exr (one image; EXR keeps alpha), or a folder name without a suffix (numbered frames,
+--image-format png|exr). Existing outputs are kept unless --force.
 
 examples:
   splat4d render --out sample.mp4                  (the bundled trained sample)
   splat4d render model.safetensors --out orbit.mp4
   splat4d render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
   splat4d render model.safetensors --out frames --image-format exr --background transparent --frames 48
+  splat4d render model.safetensors --out comp.mov --background transparent     (ProRes 4444 for editors)
   splat4d render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
   splat4d render model.safetensors --out tour.mp4 --path tour.json
   splat4d render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
@@ -32,11 +34,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
-                   help="output: .mp4, .png, .exr, or a folder name for a frame sequence")
+                   help="output: .mp4, .mov, .webm, .png, .exr, or a folder name for a frame sequence")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     g = p.add_argument_group("frames")
     g.add_argument("--size", type=argtype(parse_size), default=None, metavar="WxH",
-                   help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4)")
+                   help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4 and .webm)")
     g.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the camera path file's, else 30)")
     g.add_argument("--frames", type=int, default=None,
@@ -44,7 +46,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "camera path)")
     g.add_argument("--seconds", type=float, default=4.0, help="video length for orbit/spiral (default 4)")
     g.add_argument("--image-format", choices=("png", "exr"), default="png", help="format of a frame folder")
-    g.add_argument("--crf", type=int, default=18, help="H.264 quality, 0 (lossless) .. 51 (default 18)")
+    g.add_argument("--crf", type=int, default=None,
+                   help="constant quality of .mp4 (0 lossless .. 51) or .webm (0 .. 63); default 18")
     c = p.add_argument_group("camera")
     c.add_argument("--trajectory", choices=("orbit", "spiral", "path"), default=None,
                    help="camera motion (default orbit; path when --path or --cameras is given)")
@@ -112,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     if output_kind(args.out) == "image":  # checked before any rendering: a still is one frame
         if args.frames is not None and args.frames > 1:
             raise OptionError(f"{args.out} holds one image, not {args.frames} frames; give a folder name for "
-                              "numbered frames, or an .mp4")
+                              "numbered frames, or a video")
         args.frames = 1
     bg, transparent = parse_background(args.background)
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))

@@ -233,6 +233,15 @@ class Gaussians4D:
     def detach(self) -> "Gaussians4D":
         return replace(self, **{k: v.detach() for k, v in self.tensors().items()})
 
+    def select(self, mask: Tensor) -> "Gaussians4D":
+        """The Gaussians where `mask` (``[N]`` bool or indices) holds."""
+        return replace(self, **{k: v[mask] for k, v in self.tensors().items()})
+
+    def anchors(self) -> Tensor:
+        """``[N, 3]`` where each Gaussian is when it shows most: its spatial mean, the position at its temporal
+        mean mu_t, where the temporal marginal peaks."""
+        return self.means
+
 
 @dataclass
 class KeyframedGaussians:
@@ -346,16 +355,71 @@ class KeyframedGaussians:
     def to(self, device=None, dtype=None) -> "KeyframedGaussians":
         return replace(self, **{k: v.to(device=device, dtype=dtype) for k, v in self.tensors().items()})
 
+    def select(self, mask: Tensor) -> "KeyframedGaussians":
+        """The Gaussians where `mask` (``[N]`` bool or indices) holds, at every key."""
+        return replace(self, **{k: (v if k == "times" else v[:, mask]) for k, v in self.tensors().items()})
+
+    def anchors(self) -> Tensor:
+        """``[N, 3]`` where each Gaussian is when it shows most: its mean at the key of its highest opacity."""
+        key = self.opacities.argmax(0)
+        return self.means[key, torch.arange(self.means.shape[1], device=key.device)]
+
 
 def _lerp(x: Tensor, i: int, j: int, w: float) -> Tensor:
     """Keys i and j of `x` (``[F, ...]``) blended with weight w on the second."""
     return x[i] if w == 0.0 else x[i] + (x[j] - x[i]) * w
 
 
-#: Any model a checkpoint can hold; both have ``slice(t)``, ``centres(times)``, ``time_range``, ``sh_degree`` and
-#: ``len()``.
+#: Any model a checkpoint can hold; both have ``slice(t)``, ``centres(times)``, ``select(mask)``, ``anchors()``,
+#: ``time_range``, ``sh_degree`` and ``len()``.
 Model = Union[Gaussians4D, KeyframedGaussians]
 MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians}
+
+
+@dataclass(frozen=True)
+class CropBox:
+    """An axis-aligned box of world space: `crop` keeps the Gaussians whose anchor (`anchors()`: where the
+    Gaussian is when it shows most) lies inside it, corners included. One rule for the whole time range, so a
+    cropped model shows exactly what the viewer's crop preview showed, at every time."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+
+    def __post_init__(self) -> None:
+        lo, hi = tuple(float(x) for x in self.lo), tuple(float(x) for x in self.hi)
+        _check(len(lo) == 3 and len(hi) == 3, "a crop box needs 3 numbers for each corner")
+        _check(all(math.isfinite(x) for x in lo + hi), f"crop box corners must be finite, got {lo}, {hi}")
+        _check(all(a <= b for a, b in zip(lo, hi)),
+               f"crop box needs min <= max on every axis, got min {lo} and max {hi}")
+        object.__setattr__(self, "lo", lo)
+        object.__setattr__(self, "hi", hi)
+
+    @classmethod
+    def of(cls, values) -> "CropBox":
+        """From 6 numbers: the min corner, then the max corner (the ``--crop`` option's order)."""
+        v = [float(x) for x in values]
+        _check(len(v) == 6, f"a crop box is 6 numbers (min corner, then max corner), got {len(v)}")
+        return cls(tuple(v[:3]), tuple(v[3:]))
+
+    def provenance(self, kept: int, of: int) -> dict:
+        """What a checkpoint records of the crop that made it (``provenance["crop"]``)."""
+        return {"box": [*self.lo, *self.hi], "kept": int(kept), "of": int(of)}
+
+    def contains(self, points: Tensor) -> Tensor:
+        """``[N]`` bool: which of ``[N, 3]`` `points` lie in the box."""
+        lo = torch.tensor(self.lo, dtype=points.dtype, device=points.device)
+        hi = torch.tensor(self.hi, dtype=points.dtype, device=points.device)
+        return ((points >= lo) & (points <= hi)).all(-1)
+
+
+def crop(model: Model, box: CropBox, require_any: bool = False) -> Model:
+    """The Gaussians of `model` whose anchor lies in `box` (`CropBox`); with `require_any`, a ModelError
+    instead of an empty model (a command line's box that missed the model)."""
+    with torch.no_grad():
+        inside = box.contains(model.anchors())
+    _check(not require_any or bool(inside.any()),
+           f"the crop box {box.lo} .. {box.hi} holds none of the {len(model):,} Gaussians")
+    return model.select(inside)
 
 
 def model_bounds(model: Model, num_times: int = 9, quantile: float = 0.0) -> tuple[Tensor, Tensor]:

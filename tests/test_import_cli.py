@@ -92,3 +92,27 @@ def test_import_options_helper_leaves_existing_flags_alone():
     assert args.frames == 10
     assert import_options(args) == {"convention": "legacy", "time_range": (0.0, 3.0), "frames": 7}
     assert import_options(p.parse_args([])) == {}
+
+
+def test_convert_crop_keeps_the_box_and_records_it(tmp_path, capsys):
+    """``convert --crop`` writes only the Gaussians anchored in the box (negative corners parse as numbers) and
+    records the box in the provenance; a box that misses the model is a one-line error that writes nothing."""
+    from splat4d.checkpoint import save_checkpoint
+    from splat4d.model import CropBox, crop
+    from splat4d.viewer.synthetic import synthetic_model
+
+    model = synthetic_model(500, seed=3, radius=1.0)
+    src = save_checkpoint(tmp_path / "in.safetensors", model, provenance={"tool": "test"})
+    out = tmp_path / "out.safetensors"
+    box = [-0.5, -0.5, -0.5, 0.4, 0.3, 0.5]
+    assert main(["convert", str(src), "--out", str(out), "--crop", *map(str, box)]) == 0
+    ckpt = load_checkpoint(out)
+    want = crop(model, CropBox.of(box))
+    assert 0 < len(ckpt.model) == len(want) < 500
+    torch.testing.assert_close(ckpt.model.means, want.means, rtol=0, atol=0)
+    assert ckpt.provenance["tool"] == "test"
+    assert ckpt.provenance["crop"] == {"box": box, "kept": len(want), "of": 500}
+    missed = tmp_path / "none.safetensors"
+    assert main(["convert", str(src), "--out", str(missed), "--crop", "5", "5", "5", "6", "6", "6"]) == 1
+    err = capsys.readouterr().err
+    assert "holds none of the 500 Gaussians" in err and err.count("\n") == 1 and not missed.exists()

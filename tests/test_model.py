@@ -191,3 +191,46 @@ def test_centres_are_the_slices_means_and_visibility():
         g = k.slice(t)
         torch.testing.assert_close(means, g.means, rtol=0, atol=0)
         assert torch.equal(visible, g.visible)
+
+
+def test_crop_keeps_the_gaussians_anchored_in_the_box_and_slices_like_the_whole():
+    """A native model's anchor is its spatial mean (the position at mu_t); a keyframed one's is its mean at the
+    key where it is most opaque. The cropped model is the same Gaussians, so every slice is the whole model's
+    slice restricted to them, at every time."""
+    from splat4d.model import CropBox, crop
+
+    model = random_model(300, "current")
+    box = CropBox((-0.5, -1.0, -0.8), (1.0, 0.6, 0.9))
+    inside = ((model.means >= torch.tensor(box.lo, dtype=torch.float64))
+              & (model.means <= torch.tensor(box.hi, dtype=torch.float64))).all(-1)
+    assert 0 < int(inside.sum()) < 300
+    cropped = crop(model, box)
+    assert len(cropped) == int(inside.sum()) and cropped.time_range == model.time_range
+    for t in (0.0, 0.4, 1.3):
+        whole, part = model.slice(t), cropped.slice(t)
+        torch.testing.assert_close(part.means, whole.means[inside], rtol=0, atol=0)
+        torch.testing.assert_close(part.opacities, whole.opacities[inside], rtol=0, atol=0)
+        torch.testing.assert_close(part.sh, whole.sh[inside], rtol=0, atol=0)
+    k = keyframed(n=40)  # 3 keys of 40 Gaussians with random opacities
+    peak = k.opacities.argmax(0)
+    torch.testing.assert_close(k.anchors(), torch.stack([k.means[peak[i], i] for i in range(len(k))]))
+    kbox = CropBox.of([-1, -1, -1, 1, 1, 1])
+    kin = kbox.contains(k.anchors())
+    kc = crop(k, kbox)
+    assert 0 < len(kc) == int(kin.sum()) < len(k) and torch.equal(kc.times, k.times)
+    torch.testing.assert_close(kc.slice(0.25).means, k.slice(0.25).means[kin], rtol=0, atol=0)
+    assert len(crop(model, CropBox((9, 9, 9), (9, 9, 9)))) == 0  # an empty crop is a valid (empty) model
+    with pytest.raises(ModelError, match="holds none of the 300 Gaussians"):
+        crop(model, CropBox((9, 9, 9), (9, 9, 9)), require_any=True)
+
+
+@pytest.mark.parametrize("values, message", [
+    ([0, 0, 0, 1, 1], "6 numbers"),
+    ([0, 0, 0, -1, 1, 1], "min <= max on every axis"),
+    ([0, 0, 0, float("nan"), 1, 1], "finite"),
+])
+def test_crop_box_errors(values, message):
+    from splat4d.model import CropBox
+
+    with pytest.raises(ModelError, match=message):
+        CropBox.of(values)

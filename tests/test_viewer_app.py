@@ -141,3 +141,43 @@ def test_app_plays_a_camera_path_from_the_start_and_sees_the_view_move(display, 
     assert report["time_end"] != report["time_start"]
     bad = run_view(display, ckpt, "--play-path", "--exit-after", "1")
     assert bad.returncode == 1 and "--play-path needs --path" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_app_crop_box_shows_what_save_cropped_writes(display, files, tmp_path):
+    """``view --crop`` starts with the crop box on: the window shows exactly the cropped model (the headless render
+    of `crop(model, box)`), draws the box's 12 edges, and "Save cropped" writes those Gaussians with the box in
+    the provenance (refusing to overwrite unless asked)."""
+    from splat4d.model import CropBox, crop
+    from splat4d.viewer.app import ViewerApp
+
+    root, model, ckpt = files
+    box = [-0.4, -0.4, -0.4, 0.05, 0.4, 0.4]
+    cropped = crop(model, CropBox.of(box))
+    assert 0 < len(cropped) < len(model)
+    shot, report_path = tmp_path / "crop.png", tmp_path / "report.json"
+    proc = run_view(display, str(ckpt), "--size", "160x120", "--exit-after", "3", "--paused", "--screenshot",
+                    str(shot), "--report", str(report_path), "--crop", *map(str, box))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    assert report["shown_gaussians"] == len(cropped)
+    assert report["overlay_lines"] == 12
+    img = read_shot(shot)
+    assert psnr(img, headless_of(report, cropped)) >= 40.0
+    assert psnr(img, headless_of(report, model)) < 35.0  # and not the whole model
+    missed = run_view(display, str(ckpt), "--exit-after", "1", "--crop", "5", "5", "5", "6", "6", "6")
+    assert missed.returncode == 1 and "holds none" in missed.stderr and "Traceback" not in missed.stderr
+
+    app = ViewerApp(ckpt)  # the panel's save action, without a window
+    app.checkpoint = load_checkpoint(ckpt)
+    app.model = app.checkpoint.model
+    app._crop.file = str(tmp_path / "cropped.safetensors")
+    assert not app._attempt(app._save_cropped) and "turn on 'crop to box' first" in app.status
+    app._crop.shown = CropBox.of(box)
+    assert app._attempt(app._save_cropped)
+    saved = load_checkpoint(app._crop.file)
+    torch.testing.assert_close(saved.model.means, cropped.means, rtol=0, atol=0)
+    assert saved.provenance["crop"] == {"box": box, "kept": len(cropped), "of": len(model)}
+    assert saved.background == app.checkpoint.background
+    assert not app._attempt(app._save_cropped) and "already exists" in app.status
+    app._crop.overwrite = True
+    assert app._attempt(app._save_cropped)

@@ -183,6 +183,28 @@ def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message
     assert message in err and "\n" not in err and "Traceback" not in err
 
 
+def test_render_crop_draws_only_the_box_and_frames_it(model, ckpt, tmp_path):
+    """``render --crop`` renders the cropped model (`splat4d.model.crop`), framed by its own extent."""
+    from splat4d.model import CropBox, crop
+    from splat4d.viewer.trajectory import frame_model, orbit_cameras
+
+    box = [-0.4, -0.4, -0.4, 0.0, 0.4, 0.4]
+    out = tmp_path / "half.exr"
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--background", "transparent",
+                 "--time", "0.5", "--quiet", "--crop", *map(str, box)]) == 0
+    img = oiio.ImageInput.open(str(out))
+    got = img.read_image("float")
+    img.close()
+    half = crop(model, CropBox.of(box))
+    assert 0 < len(half) < len(model)
+    framing = frame_model(half)
+    cam = orbit_cameras(1, 64, 48, framing.center, framing.distance(40.0))[0]
+    want = render_image(half, cam, 0.5, RenderSettings(transparent=True))
+    assert np.abs(got - want).max() < 2e-3  # half floats
+    whole = render_image(model, cam, 0.5, RenderSettings(transparent=True))
+    assert np.abs(whole[..., 3] - want[..., 3]).mean() > 0.02  # the crop really removed something in view
+
+
 def test_a_still_image_is_one_frame(ckpt, tmp_path, capsys, monkeypatch):
     """An image output defaults to one frame; asking it for several fails at once, naming the user's path."""
     monkeypatch.chdir(tmp_path)

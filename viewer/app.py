@@ -11,6 +11,9 @@ sort. Screenshots are the exception: they wait for the order of their exact view
 
 While the view moves, frames are drawn at a lower resolution when the full one would not fit the frame budget
 (`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always full resolution.
+
+The crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they show most) previews what
+"Save cropped" writes and what ``--crop`` does in convert and render; the panel prints the box as that option.
 """
 
 from __future__ import annotations
@@ -27,14 +30,16 @@ import numpy as np
 
 from splat4d.errors import GLError, Splat4DError
 from splat4d.fileio import atomic_path
+from splat4d.model import CropBox, crop, model_bounds
 
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
-from .overlay import DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, Frustums, LineRenderer, path_segments
+from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, Frustums, LineRenderer,
+                      box_segments, path_segments)
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult, view_key
-from .trajectory import frame_model
+from .trajectory import FRAMING_QUANTILE, frame_model
 
 
 @dataclass
@@ -69,6 +74,8 @@ class AppOptions:
     screenshot: str | None = None
     report: str | None = None
     force: bool = False
+    #: start with the crop box on, at these 6 numbers (min corner, max corner), as ``--crop``
+    crop: tuple[float, ...] | None = None
 
 
 @dataclass
@@ -94,6 +101,33 @@ class _PathEditor:
     show: bool = True
 
 
+@dataclass
+class _CropEditor:
+    """The crop box being edited, and what the renderer shows (`shown`: the box it was cropped to, or None)."""
+
+    enabled: bool = False
+    lo: list = field(default_factory=lambda: [-1.0, -1.0, -1.0])
+    hi: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
+    show: bool = True
+    file: str = "cropped.safetensors"
+    overwrite: bool = False
+    shown: CropBox | None = None
+    kept: int = 0
+    #: how long the last crop took to apply: above LIVE_CROP_MS, a drag applies when it is released
+    apply_ms: float = 0.0
+
+    def box(self) -> CropBox | None:
+        """The box to show (None while cropping is off); a max below the min on some axis counts as the min
+        (an empty slab), so that dragging one corner past the other never fails."""
+        if not self.enabled:
+            return None
+        return CropBox(tuple(self.lo), tuple(max(a, b) for a, b in zip(self.lo, self.hi)))
+
+
+#: crops that apply faster than this follow the drag live; slower ones (large models) apply on release
+LIVE_CROP_MS = 50.0
+
+
 def camera_to_json(camera) -> dict:
     """A camera as plain JSON (c2w rows, intrinsics, size)."""
     return {"c2w": np.asarray(camera.c2w).tolist(), "fx": camera.fx, "fy": camera.fy, "cx": camera.cx,
@@ -115,6 +149,7 @@ class ViewerApp:
         self._fly = False
         self._stats = _Stats()
         self._path = _PathEditor()
+        self._crop = _CropEditor()
         self._views = []
         self._view_index = 0
         self._show_cameras = True
@@ -179,12 +214,11 @@ class ViewerApp:
         first_load = self.renderer.model is None
         t0, t1 = model.time_range
         start = self.options.time if (first_load and self.options.time is not None) else 0.5 * (t0 + t1)
-        self.renderer.set_model(model, start)
-        self._generation += 1
-        self._order, self._requested = None, None
+        self._crop = self._initial_crop(model, self.options.crop if first_load else None)
         self.model, self.checkpoint = model, ckpt
+        shown = self._apply_crop(start)
         self.source_name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
-        self.framing = frame_model(model)
+        self.framing = frame_model(shown)
         if first_load:
             o = self.options
             self.settings = replace(o.settings, background=ckpt.background) if o.checkpoint_background \
@@ -199,6 +233,45 @@ class ViewerApp:
         if not self.options.cameras:
             self._views = self._training_views(ckpt)
         self._update_frame_times()
+
+    @staticmethod
+    def _initial_crop(model, values) -> _CropEditor:
+        """A new model's crop editor: off, with the box around the model's framed extent; on at `values`
+        (``--crop``) when given."""
+        if values is not None:
+            box = CropBox.of(values)
+            return _CropEditor(enabled=True, lo=list(box.lo), hi=list(box.hi))
+        import torch
+
+        with torch.no_grad():
+            lo, hi = model_bounds(model, quantile=FRAMING_QUANTILE)
+        return _CropEditor(lo=lo.double().tolist(), hi=hi.double().tolist())
+
+    def _apply_crop(self, t: float):
+        """Show the model cropped to the editor's box (or whole); returns the model now shown."""
+        ce = self._crop
+        start = time.perf_counter()
+        box = ce.box()
+        shown = self.model if box is None else crop(self.model, box)
+        self.renderer.set_model(shown, t)
+        self._generation += 1  # sorts of the previous set of Gaussians no longer apply
+        self._order, self._requested = None, None
+        ce.shown, ce.kept, ce.apply_ms = box, len(shown), (time.perf_counter() - start) * 1e3
+        self.report["shown_gaussians"] = len(shown)
+        return shown
+
+    def _save_cropped(self) -> None:
+        from splat4d.checkpoint import save_checkpoint
+
+        ce, ckpt = self._crop, self.checkpoint
+        box = ce.shown
+        if box is None:
+            raise Splat4DError("turn on 'crop to box' first: Save cropped writes what the box shows")
+        model = crop(self.model, box)
+        provenance = {**(ckpt.provenance or {}), "crop": box.provenance(len(model), len(self.model))}
+        save_checkpoint(ce.file, model, background=ckpt.background, provenance=provenance,
+                        training=ckpt.training, force=ce.overwrite)
+        self.status = f"saved {len(model):,} of {len(self.model):,} Gaussians to {ce.file}"
 
     def _update_frame_times(self) -> None:
         """The times that frame stepping visits: a keyframed model's keys, else its dataset's frame times."""
@@ -361,15 +434,18 @@ class ViewerApp:
         st.frame_ms = (time.perf_counter() - t_frame) * 1e3
 
     def _draw_overlays(self, camera) -> None:
-        """The camera path (its curve and key frustums) and the dataset cameras, as lines over the splats; a
+        """The camera path (its curve and key frustums), the dataset cameras and the crop box, as lines over the
+        splats; a
         frustum at the viewing camera's own position (snapped to it, or flying the path) is left out."""
         depth = 0.15 * self.framing.radius  # frustum size
         path_lines, frustums = self._overlay_geometry(camera.width, camera.height, depth)
         segs, colors = frustums.lines(camera.position, 1e-3 * depth)
-        if len(path_lines):
-            segs = np.concatenate([path_lines, segs])
-            colors = np.concatenate([np.broadcast_to(np.asarray(PATH_COLOR, np.float32), (len(path_lines), 3)),
-                                     colors])
+        ce = self._crop
+        box_lines = box_segments(ce.lo, ce.hi) if ce.enabled and ce.show else np.zeros((0, 2, 3))
+        for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR)):
+            if len(lines):
+                segs = np.concatenate([lines, segs])
+                colors = np.concatenate([np.broadcast_to(np.asarray(color, np.float32), (len(lines), 3)), colors])
         self.report["overlay_lines"] = len(segs)
         if len(segs):
             self.ctx.screen.use()
@@ -549,6 +625,7 @@ class ViewerApp:
             self._screenshot_request = self._next_screenshot_name()
 
         self._draw_path_ui()
+        self._draw_crop_ui()
 
         imgui.separator_text("File")
         changed, self._open_text = imgui.input_text("##open", getattr(self, "_open_text", ""))
@@ -562,7 +639,9 @@ class ViewerApp:
         from imgui_bundle import imgui
 
         pe = self._path
-        imgui.separator_text("Camera path")
+        imgui.set_next_item_open(True, imgui.Cond_.once)
+        if not imgui.collapsing_header("Camera path"):
+            return
         n = len(pe.path.keys) if pe.path else 0
         imgui.text(f"{n} keyframe(s)" + (f", {pe.path.duration:.1f} s" if n else ""))
         _, pe.key_interval = imgui.slider_float("key spacing", pe.key_interval, 0.1, 5.0, "%.1f s")
@@ -592,6 +671,41 @@ class ViewerApp:
         imgui.same_line()
         _, pe.overwrite = imgui.checkbox("overwrite", pe.overwrite)
         _, pe.show = imgui.checkbox("show path", pe.show)
+
+
+    def _draw_crop_ui(self) -> None:
+        from imgui_bundle import imgui
+
+        ce = self._crop
+        editing = False
+        imgui.set_next_item_open(ce.enabled, imgui.Cond_.once)  # open at start-up when --crop turned it on
+        if imgui.collapsing_header("Crop"):
+            _, ce.enabled = imgui.checkbox("crop to box", ce.enabled)
+            imgui.same_line()
+            _, ce.show = imgui.checkbox("show box", ce.show)
+            step = max(self.framing.radius, 1e-3) / 200.0
+            _, ce.lo = imgui.drag_float3("min", ce.lo, step, 0.0, 0.0, "%.3f")
+            editing = imgui.is_item_active()
+            _, ce.hi = imgui.drag_float3("max", ce.hi, step, 0.0, 0.0, "%.3f")
+            editing = editing or imgui.is_item_active()
+            if imgui.button("Fit to model"):
+                fitted = self._initial_crop(self.model, None)
+                ce.lo, ce.hi = fitted.lo, fitted.hi
+            imgui.same_line()
+            imgui.text(f"{ce.kept:,} of {len(self.model):,} shown")
+            option = "--crop " + " ".join(f"{x:.6g}" for x in (*ce.lo, *ce.hi))
+            if imgui.button("Copy option"):
+                imgui.set_clipboard_text(option)
+            if imgui.is_item_hovered():
+                imgui.set_tooltip(f"{option}\n(for splat4d convert / render / view)")
+            imgui.same_line()
+            if imgui.button("Save cropped"):
+                self._attempt(self._save_cropped)
+            imgui.same_line()
+            _, ce.overwrite = imgui.checkbox("overwrite##crop", ce.overwrite)
+            _, ce.file = imgui.input_text("crop file", ce.file)
+        if ce.box() != ce.shown and (not editing or ce.apply_ms < LIVE_CROP_MS):
+            self._apply_crop(self.playback.time)
 
 
 def run_app(source, options: AppOptions | None = None) -> dict:

@@ -1,4 +1,5 @@
-"""Line overlays of the desktop app: the camera path being edited and camera frustums, drawn over the splats.
+"""Line overlays of the desktop app: the camera path being edited, camera frustums and the crop box, drawn over
+the splats.
 
 The geometry is pure numpy (``[M, 2, 3]`` world-space segments, one row per line segment); `LineRenderer` draws
 segments with per-segment colours through ``shaders/lines.glsl``, which projects them with the splats' own pinhole
@@ -22,6 +23,7 @@ PATH_COLOR = (1.0, 0.85, 0.1)
 KEY_COLOR = (1.0, 0.5, 0.1)
 DATASET_COLOR = (0.35, 0.75, 1.0)
 SELECTED_COLOR = (1.0, 1.0, 1.0)
+CROP_COLOR = (0.3, 1.0, 0.4)
 
 
 def frustum_segments(camera: Camera, depth: float) -> np.ndarray:
@@ -41,6 +43,14 @@ def frustum_segments(camera: Camera, depth: float) -> np.ndarray:
     segments += [(corners[i], corners[(i + 1) % 4]) for i in range(4)]
     segments.append((top_mid, top_mid + up))
     return np.asarray(segments, np.float64)
+
+
+def box_segments(lo, hi) -> np.ndarray:
+    """``[12, 2, 3]`` segments: the edges of the axis-aligned box with corners `lo` and `hi`."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    corners = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)] for k in range(8)])
+    # corners k and k ^ (1 << a) differ along axis a only: one edge per pair
+    return np.array([(corners[k], corners[k | 1 << a]) for a in range(3) for k in range(8) if not (k >> a) & 1])
 
 
 def polyline_segments(points: np.ndarray) -> np.ndarray:

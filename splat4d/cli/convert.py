@@ -25,17 +25,20 @@ examples:
   splat4d convert efficient4d/model.pth --out e4d.safetensors          # legacy rotation, 0..15, white
   splat4d convert output/dnerf/lego --out lego4dgs.safetensors --frames 50
   splat4d convert 'frames/*.ply' --out seq.safetensors --time-range 0 2
+  splat4d convert model.safetensors --out tidy.safetensors --crop -1 -1 0 1 1 2   # drop floaters outside a box
 """
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from ..importers import add_import_args
+    from ._crop import add_crop_arg
 
     p.add_argument("input", metavar="INPUT", help="file, folder or quoted glob to convert")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
     p.add_argument("--force", action="store_true", help="overwrite CKPT if it exists")
     p.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                    help="floating-point type of the stored tensors (default float32)")
+    add_crop_arg(p)
     add_import_args(p)
 
 
@@ -49,14 +52,21 @@ def run(args: argparse.Namespace) -> int:
     from ..fileio import check_writable
     from ..formats import load_model
     from ..importers import import_options
+    from ..model import CropBox
+    from ._crop import apply_crop
 
     out = Path(args.out)
     if out.suffix != SUFFIX:
         raise Splat4DError(f"{out}: the output must be a {SUFFIX} file")
     check_writable(out, args.force)  # fail before a long import
+    box = CropBox.of(args.crop) if args.crop is not None else None
     ckpt = load_model(args.input, **import_options(args))
     model = ckpt.model.to(dtype=getattr(torch, args.dtype))
     provenance = dict(ckpt.provenance) or {"source": str(Path(args.input).resolve()), "reader": "splat4d"}
+    if box is not None:
+        before = len(model)
+        model = apply_crop(model, args.crop)
+        provenance["crop"] = box.provenance(len(model), before)
     save_checkpoint(out, model, background=ckpt.background, provenance=provenance, training=ckpt.training,
                     force=args.force)
     t0, t1 = model.time_range

@@ -18,6 +18,7 @@ examples:
   splat4d render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
   splat4d render model.safetensors --out frames --image-format exr --background transparent --frames 48
   splat4d render model.safetensors --out comp.mov --background transparent     (ProRes 4444 for editors)
+  splat4d render model.safetensors --out core.mp4 --crop -0.5 -0.5 -0.5 0.5 0.5 0.5   (only what is in the box)
   splat4d render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
   splat4d render model.safetensors --out tour.mp4 --path tour.json
   splat4d render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
@@ -30,6 +31,8 @@ DEFAULT_FPS = 30.0
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splat4d.viewer.options import argtype, parse_size, parse_vector
+
+    from ._crop import add_crop_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
@@ -87,6 +90,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
     s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
                    help="blending order (same image; front-to-back stops saturated pixels early)")
+    add_crop_arg(s, "; orbits frame what is left")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -101,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.viewer.renderer import RenderSettings
     from splat4d.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
                                            scene_times)
+
+    from ._crop import apply_crop
 
     if args.fps is not None and not args.fps > 0:
         raise OptionError(f"--fps must be positive, got {args.fps}")
@@ -119,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         args.frames = 1
     bg, transparent = parse_background(args.background)
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
-    model = ckpt.model
+    model = apply_crop(ckpt.model, args.crop)
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                               background=bg if bg is not None else ckpt.background, transparent=transparent,
                               composite=args.composite, value_range=args.map_range)

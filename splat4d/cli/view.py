@@ -19,11 +19,14 @@ examples:
   splat4d view model.safetensors
   splat4d view model.safetensors --cameras data/spinner --background white
   splat4d view model.safetensors --path tour.json --paused --time 0.25
+  splat4d view model.safetensors --crop -0.5 -0.5 0 0.5 0.5 1     (the panel's crop box on, at this box)
 """
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splat4d.viewer.options import argtype, parse_size
+
+    from ._crop import add_crop_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
@@ -46,6 +49,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
     p.add_argument("--path", metavar="JSON", help="camera path to load (play it from the panel)")
     p.add_argument("--play-path", action="store_true", help="start playing the --path camera path at once")
+    add_crop_arg(p, " (start with the panel's crop box on, at this box)")
     p.add_argument("--screenshot-dir", default=".", help="folder for screenshots taken with P (default .)")
     p.add_argument("--no-vsync", action="store_true", help="draw as fast as possible")
     p.add_argument("--render-scale", type=float, default=1.0, metavar="S",
@@ -71,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.viewer.options import OptionError, parse_background
     from splat4d.viewer.renderer import RenderSettings
 
+    from ._crop import apply_crop
+
     bg, transparent = parse_background(args.background)
     if transparent:
         raise OptionError("the window cannot show a transparent background; use `splat4d render` for alpha output")
@@ -92,13 +98,14 @@ def run(args: argparse.Namespace) -> int:
                          split=args.split, camera_path=args.path, play_path=args.play_path,
                          screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
                          adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
-                         screenshot=args.screenshot, report=args.report, force=args.force)
+                         screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop)
     # fail with a one-line error before opening a window
     if args.path:
         CameraPath.load(args.path)
     if args.cameras:
         dataset_views(args.cameras, args.split)
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
+    apply_crop(ckpt.model, args.crop)  # a bad box, or one that misses the model
     report = run_app(ckpt, options)
     if args.exit_after is not None:
         print(f"drew {report['frames']} frame(s); time {report['time_start']:.3f} -> {report['time_end']:.3f}")

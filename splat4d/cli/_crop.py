@@ -1,0 +1,20 @@
+"""The ``--crop X0 Y0 Z0 X1 Y1 Z1`` option of the commands that read a model (convert, render, view)."""
+
+from __future__ import annotations
+
+import argparse
+
+CROP_HELP = ("keep only the Gaussians inside this world-space box (min corner, then max corner): those whose centre "
+             "lies in it when they show most; the viewer's crop panel prints the box it shows")
+
+
+def add_crop_arg(parser: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "") -> None:
+    parser.add_argument("--crop", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                        help=CROP_HELP + what)
+
+
+def apply_crop(model, values):
+    """`model` cropped to the ``--crop`` values (a one-line ModelError if the box misses it), or as it is."""
+    from ..model import CropBox, crop
+
+    return model if values is None else crop(model, CropBox.of(values), require_any=True)

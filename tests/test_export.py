@@ -493,3 +493,15 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
         assert message in err and len(err.splitlines()) == 1, err
     assert main(["export", "usd", str(ckpt), str(out), "--frames", "2", "--force", "--quiet"]) == 0
     assert re.search(r"endTimeCode = 1\b", out.read_text())
+    # --crop exports only the Gaussians the box keeps (`splat4d.model.crop`); a box that misses is one line
+    from splat4d.model import CropBox, crop
+
+    box = ["-0.2", "-1", "-1", "1", "1", "1"]
+    kept = len(crop(ball, CropBox.of([float(x) for x in box])))
+    assert 0 < kept < len(ball)
+    assert main(["export", "ply", str(ckpt), str(tmp_path / "cropped"), "--frames", "1", "--quiet", "--crop",
+                 *box]) == 0
+    assert len(read_ply((tmp_path / "cropped" / "frame_000000.ply").read_bytes())) == kept
+    assert main(["export", "ply", str(ckpt), str(tmp_path / "none"), "--quiet", "--crop", "5", "5", "5", "6", "6",
+                 "6"]) == 1
+    assert "holds none" in capsys.readouterr().err

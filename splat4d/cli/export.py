@@ -19,6 +19,8 @@ DEFAULT_FRAMES = 48
 
 
 def _add_common(q: argparse.ArgumentParser, output: str) -> None:
+    from ._crop import add_crop_arg
+
     q.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any imported format)")
     q.add_argument("out", metavar=output, help="output file or folder")
     q.add_argument("--frames", type=int, default=None, metavar="N",
@@ -30,6 +32,7 @@ def _add_common(q: argparse.ArgumentParser, output: str) -> None:
                    help="the model's up axis, written as metadata; data is not rotated (default: the checkpoint's "
                         "provenance 'up_axis' if recorded, else Y)")
     q.add_argument("--meters-per-unit", type=float, default=1.0, help="scene units in metres (default 1)")
+    add_crop_arg(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -58,12 +61,13 @@ def run(args: argparse.Namespace) -> int:
     from ..export import ExportError, exporters, frame_times
     from ..fileio import check_writable
     from ..formats import load_model
+    from ._crop import apply_crop
 
     check_writable(args.out, args.force)  # refuse before loading anything
     if not (args.fps > 0 and args.meters_per_unit > 0):
         raise ExportError(f"--fps and --meters-per-unit must be positive, got {args.fps} and {args.meters_per_unit}")
     ckpt = load_model(args.checkpoint)
-    model = ckpt.model
+    model = apply_crop(ckpt.model, args.crop)
     frames = args.frames if args.frames is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
     times = frame_times(model.time_range, frames, args.start, args.end)
     args.provenance = dict(ckpt.provenance or {})

@@ -30,7 +30,7 @@ import numpy as np
 
 from splat4d.errors import GLError, Splat4DError
 from splat4d.fileio import atomic_path
-from splat4d.model import CropBox, crop, model_bounds
+from splat4d.model import CropBox, crop
 
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
@@ -39,7 +39,7 @@ from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED
                       box_segments, path_segments)
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult, view_key
-from .trajectory import FRAMING_QUANTILE, frame_model
+from .trajectory import frame_model, framing_of, model_extent
 
 
 @dataclass
@@ -214,11 +214,12 @@ class ViewerApp:
         first_load = self.renderer.model is None
         t0, t1 = model.time_range
         start = self.options.time if (first_load and self.options.time is not None) else 0.5 * (t0 + t1)
-        self._crop = self._initial_crop(model, self.options.crop if first_load else None)
-        self.model, self.checkpoint = model, ckpt
+        extent = model_extent(model)  # once: over a second for 1M Gaussians
+        self._crop = self._initial_crop(extent, self.options.crop if first_load else None)
+        self.model, self.checkpoint, self._extent = model, ckpt, extent
         shown = self._apply_crop(start)
         self.source_name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
-        self.framing = frame_model(shown)
+        self.framing = framing_of(*extent) if shown is model else frame_model(shown)
         if first_load:
             o = self.options
             self.settings = replace(o.settings, background=ckpt.background) if o.checkpoint_background \
@@ -235,17 +236,13 @@ class ViewerApp:
         self._update_frame_times()
 
     @staticmethod
-    def _initial_crop(model, values) -> _CropEditor:
-        """A new model's crop editor: off, with the box around the model's framed extent; on at `values`
+    def _initial_crop(extent: tuple[np.ndarray, np.ndarray], values) -> _CropEditor:
+        """A new model's crop editor: off, with the box at the model's extent (`model_extent`); on at `values`
         (``--crop``) when given."""
         if values is not None:
             box = CropBox.of(values)
             return _CropEditor(enabled=True, lo=list(box.lo), hi=list(box.hi))
-        import torch
-
-        with torch.no_grad():
-            lo, hi = model_bounds(model, quantile=FRAMING_QUANTILE)
-        return _CropEditor(lo=lo.double().tolist(), hi=hi.double().tolist())
+        return _CropEditor(lo=extent[0].tolist(), hi=extent[1].tolist())
 
     def _apply_crop(self, t: float):
         """Show the model cropped to the editor's box (or whole); returns the model now shown."""
@@ -689,8 +686,7 @@ class ViewerApp:
             _, ce.hi = imgui.drag_float3("max", ce.hi, step, 0.0, 0.0, "%.3f")
             editing = editing or imgui.is_item_active()
             if imgui.button("Fit to model"):
-                fitted = self._initial_crop(self.model, None)
-                ce.lo, ce.hi = fitted.lo, fitted.hi
+                ce.lo, ce.hi = self._extent[0].tolist(), self._extent[1].tolist()
             imgui.same_line()
             imgui.text(f"{ce.kept:,} of {len(self.model):,} shown")
             option = "--crop " + " ".join(f"{x:.6g}" for x in (*ce.lo, *ce.hi))

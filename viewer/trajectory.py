@@ -51,13 +51,22 @@ class Framing:
 FRAMING_QUANTILE = 0.005
 
 
-def frame_model(model) -> Framing:
-    """`Framing` of a model from its bounds over time (`splat4d.model.model_bounds`), leaving out the outermost
-    FRAMING_QUANTILE of its means per axis: a handful of floaters no longer shrinks the object on screen."""
+def model_extent(model) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) corners of a model's bounds over time (`splat4d.model.model_bounds`), leaving out the outermost
+    FRAMING_QUANTILE of its means per axis: a handful of floaters does not stretch them."""
     with torch.no_grad():
         lo, hi = model_bounds(model, quantile=FRAMING_QUANTILE)
-    lo, hi = lo.double().numpy(), hi.double().numpy()
+    return lo.double().cpu().numpy(), hi.double().cpu().numpy()
+
+
+def framing_of(lo: np.ndarray, hi: np.ndarray) -> Framing:
+    """The `Framing` of the box (lo, hi): its centre and half its diagonal."""
     return Framing(0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3))
+
+
+def frame_model(model) -> Framing:
+    """`Framing` of a model's `model_extent`: a handful of floaters no longer shrinks the object on screen."""
+    return framing_of(*model_extent(model))
 
 
 def orbit_cameras(frames: int, width: int, height: int, center: Sequence[float], distance: float,

@@ -181,3 +181,33 @@ def test_app_crop_box_shows_what_save_cropped_writes(display, files, tmp_path):
     assert not app._attempt(app._save_cropped) and "already exists" in app.status
     app._crop.overwrite = True
     assert app._attempt(app._save_cropped)
+
+
+def test_frame_stepping_visits_keyframes_else_dataset_frame_times(files):
+    """The app's frame steps (arrow keys and buttons) go to a keyframed model's keys, else to the frame times of the
+    dataset cameras it shows, else by one 30 FPS playback frame. `load` sets them; no window is needed for that."""
+    from splat4d.viewer.app import AppOptions, ViewerApp
+    from splat4d.viewer.camera_path import dataset_views
+    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from test_model import keyframed
+
+    root, model, ckpt = files
+    app = ViewerApp(ckpt, AppOptions(play=False, cameras=str(root)))
+    app.renderer = SplatRenderer(headless_context())
+    app._views = dataset_views(root, "train")  # as `run` does for --cameras, before the model loads
+    app.load(ckpt)
+    assert app.playback.frame_times == (0.0, 0.5)  # the two dataset cameras' times
+    app.playback.time = 0.2
+    assert app.playback.step(1) == 0.5 and app.playback.step(-1) == 0.0
+    keyed = keyframed()  # keys at 0, 0.5, 2
+    app.load(save_checkpoint(root / "keyed.safetensors", keyed, force=True))
+    assert app.playback.frame_times == (0.0, 0.5, 2.0)
+    app.playback.time = 0.6
+    assert app.playback.step(1) == 2.0 and app.playback.step(-1) == 0.5
+    app.options.cameras = None  # and the checkpoint names no training dataset: no cameras
+    app.load(ckpt)  # native, no cameras: one 30 FPS frame of playback
+    app.playback.time = 0.5
+    t0, t1 = model.time_range
+    step = (t1 - t0) / (30 * app.playback.loop_seconds)
+    assert app.playback.frame_times == () and abs(app.playback.step(1) - (0.5 + step)) < 1e-9
+    app.renderer.release()

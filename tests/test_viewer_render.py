@@ -1,4 +1,5 @@
-"""Headless rendering: ``splat4d render`` to mp4 / mov / webm / EXR / PNG, compositing and alpha, render modes, errors."""
+"""Headless rendering: ``splat4d render`` to mp4 / mov / webm / EXR / PNG, compositing and alpha, render modes,
+errors."""
 
 from __future__ import annotations
 

@@ -13,7 +13,8 @@ While the view moves, frames are drawn at a lower resolution when the full one w
 (`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always full resolution.
 
 The crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they show most) previews what
-"Save cropped" writes and what ``--crop`` does in convert and render; the panel prints the box as that option.
+"Save cropped" writes and what ``--crop`` does in convert, render and export; the panel copies the box as that
+option.
 """
 
 from __future__ import annotations
@@ -116,12 +117,14 @@ class _CropEditor:
     #: how long the last crop took to apply: above LIVE_CROP_MS, a drag applies when it is released
     apply_ms: float = 0.0
 
-    def box(self) -> CropBox | None:
-        """The box to show (None while cropping is off); a max below the min on some axis counts as the min
-        (an empty slab), so that dragging one corner past the other never fails."""
-        if not self.enabled:
-            return None
+    def edited(self) -> CropBox:
+        """The box as edited; a max below the min on some axis counts as the min (an empty slab), so that
+        dragging one corner past the other never fails."""
         return CropBox(tuple(self.lo), tuple(max(a, b) for a, b in zip(self.lo, self.hi)))
+
+    def box(self) -> CropBox | None:
+        """The box to show: `edited`, or None while cropping is off."""
+        return self.edited() if self.enabled else None
 
 
 #: crops that apply faster than this follow the drag live; slower ones (large models) apply on release
@@ -432,13 +435,13 @@ class ViewerApp:
 
     def _draw_overlays(self, camera) -> None:
         """The camera path (its curve and key frustums), the dataset cameras and the crop box, as lines over the
-        splats; a
-        frustum at the viewing camera's own position (snapped to it, or flying the path) is left out."""
+        splats; a frustum at the viewing camera's own position (snapped to it, or flying the path) is left out."""
         depth = 0.15 * self.framing.radius  # frustum size
         path_lines, frustums = self._overlay_geometry(camera.width, camera.height, depth)
         segs, colors = frustums.lines(camera.position, 1e-3 * depth)
         ce = self._crop
-        box_lines = box_segments(ce.lo, ce.hi) if ce.enabled and ce.show else np.zeros((0, 2, 3))
+        box = ce.box() if ce.show else None
+        box_lines = box_segments(box.lo, box.hi) if box is not None else np.zeros((0, 2, 3))
         for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR)):
             if len(lines):
                 segs = np.concatenate([lines, segs])
@@ -669,7 +672,6 @@ class ViewerApp:
         _, pe.overwrite = imgui.checkbox("overwrite", pe.overwrite)
         _, pe.show = imgui.checkbox("show path", pe.show)
 
-
     def _draw_crop_ui(self) -> None:
         from imgui_bundle import imgui
 
@@ -689,7 +691,8 @@ class ViewerApp:
                 ce.lo, ce.hi = self._extent[0].tolist(), self._extent[1].tolist()
             imgui.same_line()
             imgui.text(f"{ce.kept:,} of {len(self.model):,} shown")
-            option = "--crop " + " ".join(f"{x:.6g}" for x in (*ce.lo, *ce.hi))
+            edited = ce.edited()
+            option = "--crop " + " ".join(f"{x:.6g}" for x in (*edited.lo, *edited.hi))
             if imgui.button("Copy option"):
                 imgui.set_clipboard_text(option)
             if imgui.is_item_hovered():

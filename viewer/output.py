@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-from fractions import Fraction
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 from typing import Iterator
 

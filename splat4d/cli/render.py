@@ -41,7 +41,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     g = p.add_argument_group("frames")
     g.add_argument("--size", type=argtype(parse_size), default=None, metavar="WxH",
-                   help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4 and .webm)")
+                   help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4 and "
+                        ".webm)")
     g.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the camera path file's, else 30)")
     g.add_argument("--frames", type=int, default=None,

@@ -97,6 +97,30 @@ def test_a_nerfstudio_camera_path_renders_its_frames_at_its_size_and_fps(model, 
         assert np.abs(png - want).max() < 2.5 / 255  # the file's camera and render_time, frame for frame
 
 
+def test_save_cameras_writes_a_nerfstudio_path_that_renders_the_same_frames(ckpt, tmp_path, capsys):
+    """``--save-cameras`` records every frame's camera and model time as a nerfstudio camera path: rendering that
+    file with ``--path`` gives the same frames, at the same size, count and fps; an existing file is kept."""
+    import json
+
+    first, again, cams = tmp_path / "first", tmp_path / "again", tmp_path / "cams.json"
+    args = ["render", str(ckpt), "--size", "48x36", "--fps", "12", "--frames", "5", "--trajectory", "spiral",
+            "--time-mode", "timelapse", "--quiet"]
+    assert main([*args, "--out", str(first), "--save-cameras", str(cams)]) == 0
+    data = json.loads(cams.read_text())
+    assert (data["render_width"], data["render_height"], data["fps"], len(data["camera_path"])) == (48, 36, 12, 5)
+    assert data["seconds"] == 5 / 12
+    assert [f["render_time"] for f in data["camera_path"]] == pytest.approx([0, 0.25, 0.5, 0.75, 1.0])
+    capsys.readouterr()
+    assert main(["render", str(ckpt), "--out", str(again), "--path", str(cams), "--quiet"]) == 0
+    assert "5 frame(s) 48x36 at 12 fps" in capsys.readouterr().out
+    for i in range(5):
+        a = cv2.imread(str(first / f"frame_{i:05d}.png")).astype(int)
+        b = cv2.imread(str(again / f"frame_{i:05d}.png")).astype(int)
+        assert np.abs(a - b).max() <= 1
+    assert main([*args, "--out", str(tmp_path / "third"), "--save-cameras", str(cams)]) == 1
+    assert "already exists" in capsys.readouterr().err and not (tmp_path / "third").exists()  # refused up front
+
+
 def decode_rgba(path: Path) -> tuple[list[np.ndarray], object]:
     """Every frame of a video as float RGBA in [0, 1] (straight alpha; 1 where the video has none), and its
     stream. VP9 alpha lives in side data that only libvpx's decoder reads, not FFmpeg's native one."""

@@ -2,7 +2,8 @@
 
 * `SplatRenderer` / `render_image`: the moderngl renderer (EGL offscreen or a window's context).
 * `render_frames` / `render_to_file`: headless video and image output.
-* `CameraPath`, `CameraKey`, `path_from_dataset`, `dataset_views`: keyframed camera paths (JSON).
+* `CameraPath`, `CameraKey`, `path_from_dataset`, `dataset_views`, `nerfstudio_camera_path`: keyframed camera
+  paths (JSON; nerfstudio's in and out).
 * `orbit_cameras`, `path_cameras`, `scene_times`, `frame_model`: trajectories and scene-time schedules.
 * `run_app` / `AppOptions`: the glfw + Dear ImGui desktop app (needs a display).
 
@@ -13,7 +14,8 @@ and imgui load only when needed). The viewer never imports the trainer.
 import importlib
 
 _EXPORTS = {
-    "camera_path": ("CameraKey", "CameraPath", "DatasetView", "dataset_views", "path_from_dataset"),
+    "camera_path": ("CameraKey", "CameraPath", "DatasetView", "dataset_views", "nerfstudio_camera_path",
+                    "path_from_dataset"),
     "headless": ("render_frames", "render_to_file"),
     "renderer": ("COMPOSITE_ORDERS", "RENDER_MODES", "FrameStats", "RenderSettings", "SplatRenderer",
                  "headless_context", "render_image"),

@@ -394,6 +394,29 @@ class CameraPath:
         return cls.from_json(data, str(path), time_range)
 
 
+def nerfstudio_camera_path(cameras: Sequence[Camera], fps: float, times: Sequence[float] | None = None,
+                           time_range: tuple[float, float] | None = None) -> dict:
+    """The nerfstudio camera-path JSON of rendered frames (what ``ns-render camera-path`` plays, and what
+    `CameraPath.from_nerfstudio` reads back frame for frame): one entry per camera with its OpenGL
+    ``camera_to_world`` (row-major), vertical ``fov`` in degrees and ``aspect``, and with `times` a ``render_time``
+    normalised to [0, 1] over `time_range`. nerfstudio's cameras have their principal point at the image centre,
+    so an off-centre one is not kept."""
+    if not cameras:
+        raise CameraError("a camera path needs at least one camera")
+    width, height = cameras[0].width, cameras[0].height
+    t0, t1 = time_range or (0.0, 1.0)
+    span = (t1 - t0) or 1.0
+    frames = []
+    for i, cam in enumerate(cameras):
+        frame = {"camera_to_world": cam.to_opengl_c2w().ravel().tolist(), "fov": math.degrees(cam.fov_y),
+                 "aspect": cam.width / cam.height}
+        if times is not None:
+            frame["render_time"] = (float(times[i]) - t0) / span
+        frames.append(frame)
+    return {"camera_type": "perspective", "render_width": width, "render_height": height,
+            "seconds": len(cameras) / fps, "fps": fps, "camera_path": frames}
+
+
 # --- training dataset cameras ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class DatasetView:

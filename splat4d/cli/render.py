@@ -22,6 +22,7 @@ examples:
   splat4d render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
   splat4d render model.safetensors --out tour.mp4 --path tour.json
   splat4d render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
+  splat4d render model.safetensors --out orbit.mp4 --save-cameras orbit_cameras.json   (the same cameras elsewhere)
 """
 
 
@@ -39,6 +40,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", "-o", required=True, metavar="FILE",
                    help="output: .mp4, .mov, .webm, .png, .exr, or a folder name for a frame sequence")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--save-cameras", metavar="JSON",
+                   help="also write every frame's camera and model time as a nerfstudio camera path (ns-render "
+                        "camera-path, the nerfstudio viewer; --path reads it back frame for frame)")
     g = p.add_argument_group("frames")
     g.add_argument("--size", type=argtype(parse_size), default=None, metavar="WxH",
                    help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4 and "
@@ -96,10 +100,13 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import json
+
     from splat4d.errors import CameraError
     from splat4d.formats import load_model
     from splat4d.samples.trained import trained_checkpoint
-    from splat4d.viewer.camera_path import CameraPath, path_from_dataset
+    from splat4d.fileio import atomic_write_bytes, check_writable
+    from splat4d.viewer.camera_path import CameraPath, nerfstudio_camera_path, path_from_dataset
     from splat4d.viewer.headless import render_to_file
     from splat4d.viewer.options import OptionError, parse_background
     from splat4d.viewer.output import output_kind
@@ -119,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--map-range needs LO < HI, got {args.map_range[0]:g},{args.map_range[1]:g}")
     if not 0 < args.fov < 180:
         raise OptionError(f"--fov must be in (0, 180) degrees, got {args.fov}")
+    if args.save_cameras:
+        check_writable(args.save_cameras, args.force)
     if output_kind(args.out) == "image":  # checked before any rendering: a still is one frame
         if args.frames is not None and args.frames > 1:
             raise OptionError(f"{args.out} holds one image, not {args.frames} frames; give a folder name for "
@@ -166,11 +175,15 @@ def run(args: argparse.Namespace) -> int:
 
     summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
                              progress=False if args.quiet else "render", crf=args.crf)
+    if args.save_cameras:
+        ns_path = nerfstudio_camera_path(cameras, fps, times, model.time_range)
+        atomic_write_bytes(args.save_cameras, (json.dumps(ns_path, indent=1) + "\n").encode(), args.force)
     import statistics
 
     median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)
     print(f"wrote {args.out}: {summary.frames} frame(s) {width}x{height}"
           + (f" at {fps:g} fps" if summary.frames > 1 else "")
           + f", {len(model):,} Gaussians, median sort {median(summary.sort_ms):.1f} ms + draw "
-            f"{median(summary.draw_ms):.1f} ms per frame")
+            f"{median(summary.draw_ms):.1f} ms per frame" + (f"; cameras in {args.save_cameras}"
+                                                             if args.save_cameras else ""))
     return 0

@@ -21,22 +21,20 @@
 // rgb = sum c_i a_i T_i and alpha = 1 - prod(1 - a_i), the reference compositing. Splats sit at depth 0.5 so
 // that the front-to-back early stop (splat_screen.glsl writes depth 0 over saturated pixels) rejects them there.
 //
-// u_mode: 0 colour, 1 depth (accumulates the expected depth sum z_i a_i T_i), 2 alpha (as colour),
-//         3 ellipse outlines (2 sigma), 4 centres (small discs); the last two in SPLAT_OVERLAY only;
-//         5 speed (as depth: the pre-pass put each Gaussian's speed where its depth goes).
+// u_mode: 3 ellipse outlines (2 sigma), 4 centres (small discs), in SPLAT_OVERLAY only; every other mode is drawn
+//         the same way: colour, alpha, and depth and speed, for which the pre-pass wrote the value as the colour
+//         (accumulating the expected value sum v_i a_i T_i).
 
-#define MODE_DEPTH 1
 #define MODE_OUTLINES 3
 #define MODE_CENTRES 4
-#define MODE_SPEED 5
 #define OUTLINE_SIGMAS 2.0
 #define CENTRE_RADIUS_PX 2.0
 
 #if defined VERTEX_SHADER
 
-in vec4 i_geom;   // centre x, y (pixels, y down), radius (std-devs, 0 = culled), depth (speed in MODE_SPEED)
+in vec4 i_geom;   // centre x, y (pixels, y down), radius (std-devs, 0 = culled), depth
 in vec4 i_axes;   // axis 1 xy, axis 2 xy (pixels per std-dev)
-in vec4 i_color;  // rgb, opacity
+in vec4 i_color;  // rgb (depth or speed in those modes), opacity
 in vec4 i_rect;   // tile rectangle x0, y0, x1, y1 (pixels, y down)
 
 uniform vec2 u_size;
@@ -51,7 +49,6 @@ flat out mat2 v_to_uv;      // pixel offset from the centre -> std-devs along th
 out vec2 v_uv;
 #endif
 flat out vec4 v_color;
-flat out float v_depth;
 flat out vec4 v_rect;
 
 void main() {
@@ -93,7 +90,6 @@ void main() {
     v_uv = uv;
 #endif
     v_color = i_color;
-    v_depth = i_geom.w;
     v_rect = u_mode == MODE_OUTLINES || u_mode == MODE_CENTRES ? vec4(-1e30, -1e30, 1e30, 1e30) : i_rect;
 }
 
@@ -109,7 +105,6 @@ flat in mat2 v_to_uv;
 in vec2 v_uv;
 #endif
 flat in vec4 v_color;
-flat in float v_depth;
 flat in vec4 v_rect;
 
 out vec4 f_color;
@@ -140,8 +135,7 @@ void main() {
     float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
     // below the cut-off the fragment adds exactly nothing (cheaper than discard on software rasterizers)
     alpha = (alpha < ALPHA_THRESHOLD || !inside) ? 0.0 : alpha;
-    vec3 value = u_mode == MODE_DEPTH || u_mode == MODE_SPEED ? vec3(v_depth) : v_color.rgb;
-    f_color = vec4(value * alpha, alpha);
+    f_color = vec4(v_color.rgb * alpha, alpha);
 }
 
 #endif

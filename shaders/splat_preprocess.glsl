@@ -31,11 +31,11 @@ uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time te
 uniform float u_scale;      // splat scale (multiplies every std-dev)
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
-uniform int u_speed;        // 1: the speed render mode, o_geom.w holds the Gaussian's speed instead of its depth
+uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|
 
-out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z (speed)
+out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z
 out vec4 o_axes;   // 2D principal axes scaled by their std-devs (pixels): axis 1 xy, axis 2 xy
-out vec4 o_color;  // rgb, opacity at t
+out vec4 o_color;  // rgb (or the depth / speed of u_value in all three), opacity at t
 out vec4 o_rect;   // pixels the reference rasterizer may touch: x0, y0, x1, y1 (tile-aligned, end exclusive)
 
 const float SH_C0 = 0.28209479177387814;
@@ -166,9 +166,11 @@ void main() {
         cull();
         return;
     }
-    o_geom = vec4(centre, max(radius, 1e-6), u_speed != 0 ? a_cov_b.w : p.z);
+    o_geom = vec4(centre, max(radius, 1e-6), p.z);
     o_axes = vec4(axis1, axis2);
-    o_color = vec4(sh_color(mean - u_campos, -dt), opacity);
+    // the value modes composite their value as a grey colour, so the splat shader has one path for all modes
+    vec3 rgb = u_value == 0 ? sh_color(mean - u_campos, -dt) : vec3(u_value == 1 ? p.z : a_cov_b.w);
+    o_color = vec4(rgb, opacity);
     o_rect = vec4(floor(lo / float(TILE_SIZE)), ceil(hi / float(TILE_SIZE))) * float(TILE_SIZE);
 }
 

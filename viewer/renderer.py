@@ -549,7 +549,8 @@ class SplatRenderer:
                       u_trans=w2c[:3, 3], u_campos=camera.position,
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
-                      u_scale=settings.splat_scale, u_sh_degree=degree, u_sh=0, u_speed=settings.mode == "speed")
+                      u_scale=settings.splat_scale, u_sh_degree=degree, u_sh=0,
+                      u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 
     def _resolve(self, settings: RenderSettings, value_range, target, viewport) -> None:
         tg = self._targets

@@ -19,6 +19,7 @@ Everything is plain torch, batched over a leading ``[N]`` and differentiable.
 from __future__ import annotations
 
 import functools
+import math
 from typing import Literal
 
 import torch
@@ -150,6 +151,16 @@ def temporal_marginal(t: float | Tensor, t_means: Tensor, var_t: Tensor) -> Tens
     """``[N]`` unnormalised temporal marginal exp(-(t - mu_t)^2 / (2 var_t)); multiplies opacity."""
     dt = t - t_means
     return torch.exp(-0.5 * dt * dt / var_t)
+
+
+def visible_span(var_t: Tensor, cull: float | None = None) -> Tensor:
+    """``[N]`` how long each Gaussian is drawn: the width of the time window where its `temporal_marginal` exceeds
+    `cull` (default TEMPORAL_CULL, where slices stop drawing it), 2 sqrt(2 ln(1 / cull) var_t), in model time
+    units. What the viewer's lifespan mode shows."""
+    from .constants import TEMPORAL_CULL
+
+    c = TEMPORAL_CULL if cull is None else cull
+    return 2.0 * torch.sqrt(2.0 * math.log(1.0 / c) * var_t)
 
 
 def covariance_4d_from_motion(cov3: Tensor, velocity: Tensor, var_t: Tensor) -> Tensor:

@@ -182,3 +182,45 @@ def test_splat_runs_follow_the_cost_model():
         assert r._splat_runs(RenderSettings(primitive="quads"), small_round) == [(0, 4, "quads")]
     finally:
         r.release()
+
+
+def test_lifespan_mode_accumulates_each_gaussians_visible_span_capped_at_the_time_range():
+    """The lifespan mode composites how long each Gaussian is drawn (`covariance.visible_span`: where its temporal
+    marginal exceeds the cull), capped at the model's time span, like the rasterizer composites that value as
+    colour; the colour map runs from 0 to the time span. A keyframed model stores no lifespans: all read as the
+    whole span."""
+    from dataclasses import replace
+
+    from splat4d.covariance import condition_on_time, visible_span
+    from splat4d.sh import SH_C0
+
+    model = synthetic_model(4000, seed=6, sh_degree=1, radius=0.4, scale=0.02, speed=0.3, lifetime=0.08)
+    camera = orbit(20, 40, 1.6, fov_deg=45, width=96, height=96)
+    t0, t1 = model.time_range
+    with torch.no_grad():
+        _, _, var_t = condition_on_time(model.covariance_4d())
+        span = torch.clamp(visible_span(var_t), max=t1 - t0).float()
+    assert float(span.min()) < 0.5 * float(span.max())  # the spans differ, so the test sees them
+    for t in (0.35, 0.6):
+        r = SplatRenderer(headless_context(), model)
+        try:
+            stats = r.render(camera, t, RenderSettings(mode="lifespan"))
+            gl = r.read_accumulation()[..., 0]
+        finally:
+            r.release()
+        g = model.slice(t)
+        as_colour = replace(g, sh=((span - 0.5) / SH_C0)[:, None, None].expand(-1, 1, 3).clone(), sh_degree=0)
+        with torch.no_grad():
+            ref = rasterize(as_colour, camera, (0.0, 0.0, 0.0)).rgb[..., 0].numpy()
+        assert ref.max() > 0.1 * (t1 - t0)
+        assert psnr(gl / (t1 - t0), ref / (t1 - t0)) >= MIN_PSNR
+        assert stats.value_range == (0.0, t1 - t0)
+    keyed = keyframed(model, (0.0, 0.5, 1.0))
+    r = SplatRenderer(headless_context(), keyed)
+    try:
+        r.render(camera, 0.5, RenderSettings(mode="lifespan"))
+        acc = r.read_accumulation()
+    finally:
+        r.release()
+    covered = acc[..., 3] > 0.05
+    assert covered.any() and np.allclose(acc[..., 0][covered] / acc[..., 3][covered], t1 - t0, rtol=1e-3)

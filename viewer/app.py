@@ -602,8 +602,11 @@ class ViewerApp:
         s.mode = RENDER_MODES[mode]
         if s.mode in VALUE_MODES:  # the colour map's legend
             lo, hi = st.frame.value_range
-            imgui.text_wrapped(f"red = near ({lo:.3g}), blue = far ({hi:.3g})" if s.mode == "depth" else
-                               f"blue = still ({lo:.3g}), red = fast ({hi:.3g} units per unit of model time)")
+            imgui.text_wrapped({
+                "depth": f"red = near ({lo:.3g}), blue = far ({hi:.3g})",
+                "speed": f"blue = still ({lo:.3g}), red = fast ({hi:.3g} units per unit of model time)",
+                "lifespan": f"time each Gaussian is drawn: blue = brief, red = the whole time range ({hi:.3g})",
+            }[s.mode])
         _, s.splat_scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f")
         max_deg = self.renderer.splats.sh_degree if self.renderer.splats is not None else 0
         deg = max_deg if s.sh_degree is None else min(s.sh_degree, max_deg)

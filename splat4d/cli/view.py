@@ -34,9 +34,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="window size (default 1280x720)")
     p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
     p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
-    p.add_argument("--background", default=None, help="white, black, grey, #rrggbb or r,g,b (default: the checkpoint's)")
+    p.add_argument("--background", default=None,
+                   help="white, black, grey, #rrggbb or r,g,b (default: the checkpoint's)")
     p.add_argument("--mode", default="color",
-                   help="color, depth, alpha, outlines, centers or speed (default color)")
+                   help="color, depth, alpha, outlines, centers, speed or lifespan (default color)")
     p.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
     p.add_argument("--sh-degree", type=int, default=None, help="display at a lower SH degree")
     p.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",

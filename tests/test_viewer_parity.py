@@ -38,6 +38,27 @@ def keyframed(source, times) -> KeyframedGaussians:
         sh=torch.stack([g.sh for g in slices]), sh_degree=source.sh_degree)
 
 
+def value_images(model, camera, t, mode: str, values: torch.Tensor):
+    """A value mode against the rasterizer: (the GL accumulation ``[H, W, 4]``, the frame's `FrameStats`, the
+    rasterizer's red channel of ``model.slice(t)`` with every Gaussian's colour set to its entry of `values`)."""
+    from dataclasses import replace
+
+    from splat4d.sh import SH_C0
+
+    r = SplatRenderer(headless_context(), model)
+    try:
+        stats = r.render(camera, t, RenderSettings(mode=mode))
+        acc = r.read_accumulation()
+    finally:
+        r.release()
+    g = model.slice(t)
+    as_colour = replace(g, sh=((values.to(g.sh.dtype) - 0.5) / SH_C0)[:, None, None].expand(-1, 1, 3).clone(),
+                        sh_degree=0)
+    with torch.no_grad():
+        ref = rasterize(as_colour, camera, (0.0, 0.0, 0.0)).rgb[..., 0].numpy()
+    return acc, stats, ref
+
+
 def compare(model, camera, t, background=(0.1, 0.2, 0.3), composite="front-to-back", primitive="auto"):
     """(PSNR of rgb, max alpha error) between the GL renderer and the trainer's rasterizer."""
     r = SplatRenderer(headless_context(), model)
@@ -89,30 +110,18 @@ def test_speed_mode_accumulates_each_gaussians_speed_like_the_rasterizer_composi
     """The speed mode composites |d mean / dt| in place of colour: the GL accumulation equals the rasterizer's image
     of the same slice with every Gaussian's colour set to its speed (`Gaussians3D.velocities`), for a native model
     (conditional-mean velocity) and a keyframed one (its key segment's velocity)."""
-    from dataclasses import replace
-
-    from splat4d.sh import SH_C0
     from splat4d.viewer.splats import to_arrays, typical_speed
 
     native = synthetic_model(3000, seed=5, sh_degree=1, radius=0.4, scale=0.02, speed=0.5)
     keyed = keyframed(native, (0.0, 0.5, 1.0))
     camera = orbit(20, 60, 1.6, fov_deg=45, width=96, height=96)
     for model, t in ((native, 0.3), (keyed, 0.7)):
-        r = SplatRenderer(headless_context(), model)
-        try:
-            stats = r.render(camera, t, RenderSettings(mode="speed"))
-            gl = r.read_accumulation()[..., 0]
-        finally:
-            r.release()
-        g = model.slice(t)
-        speed = torch.linalg.vector_norm(g.velocities, dim=-1)
+        speed = torch.linalg.vector_norm(model.slice(t).velocities, dim=-1)
         assert float(speed.max()) > 0.1 and float(speed.min()) < float(speed.max()) / 2
-        as_colour = replace(g, sh=((speed - 0.5) / SH_C0)[:, None, None].expand(-1, 1, 3).clone(), sh_degree=0)
-        with torch.no_grad():
-            ref = rasterize(as_colour, camera, (0.0, 0.0, 0.0)).rgb[..., 0].numpy()
+        acc, stats, ref = value_images(model, camera, t, "speed", speed)
         top = float(speed.max())
         assert ref.max() > 0.2 * top  # the image is not empty
-        assert psnr(gl / top, ref / top) >= MIN_PSNR
+        assert psnr(acc[..., 0] / top, ref / top) >= MIN_PSNR
         # the colour map runs from 0 to the model-wide typical speed (the same at every time)
         assert stats.value_range == (0.0, typical_speed(model, to_arrays(model, t)))
 
@@ -189,10 +198,7 @@ def test_lifespan_mode_accumulates_each_gaussians_visible_span_capped_at_the_tim
     marginal exceeds the cull), capped at the model's time span, like the rasterizer composites that value as
     colour; the colour map runs from 0 to the time span. A keyframed model stores no lifespans: all read as the
     whole span."""
-    from dataclasses import replace
-
     from splat4d.covariance import condition_on_time, visible_span
-    from splat4d.sh import SH_C0
 
     model = synthetic_model(4000, seed=6, sh_degree=1, radius=0.4, scale=0.02, speed=0.3, lifetime=0.08)
     camera = orbit(20, 40, 1.6, fov_deg=45, width=96, height=96)
@@ -202,25 +208,11 @@ def test_lifespan_mode_accumulates_each_gaussians_visible_span_capped_at_the_tim
         span = torch.clamp(visible_span(var_t), max=t1 - t0).float()
     assert float(span.min()) < 0.5 * float(span.max())  # the spans differ, so the test sees them
     for t in (0.35, 0.6):
-        r = SplatRenderer(headless_context(), model)
-        try:
-            stats = r.render(camera, t, RenderSettings(mode="lifespan"))
-            gl = r.read_accumulation()[..., 0]
-        finally:
-            r.release()
-        g = model.slice(t)
-        as_colour = replace(g, sh=((span - 0.5) / SH_C0)[:, None, None].expand(-1, 1, 3).clone(), sh_degree=0)
-        with torch.no_grad():
-            ref = rasterize(as_colour, camera, (0.0, 0.0, 0.0)).rgb[..., 0].numpy()
+        acc, stats, ref = value_images(model, camera, t, "lifespan", span)
         assert ref.max() > 0.1 * (t1 - t0)
-        assert psnr(gl / (t1 - t0), ref / (t1 - t0)) >= MIN_PSNR
+        assert psnr(acc[..., 0] / (t1 - t0), ref / (t1 - t0)) >= MIN_PSNR
         assert stats.value_range == (0.0, t1 - t0)
     keyed = keyframed(model, (0.0, 0.5, 1.0))
-    r = SplatRenderer(headless_context(), keyed)
-    try:
-        r.render(camera, 0.5, RenderSettings(mode="lifespan"))
-        acc = r.read_accumulation()
-    finally:
-        r.release()
+    acc, _, _ = value_images(keyed, camera, 0.5, "lifespan", torch.full((len(keyed),), t1 - t0))
     covered = acc[..., 3] > 0.05
     assert covered.any() and np.allclose(acc[..., 0][covered] / acc[..., 3][covered], t1 - t0, rtol=1e-3)

@@ -36,7 +36,7 @@ uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the de
 
 out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z
 out vec4 o_axes;   // 2D principal axes scaled by their std-devs (pixels): axis 1 xy, axis 2 xy
-out vec4 o_color;  // rgb (or the depth / speed of u_value in all three), opacity at t
+out vec4 o_color;  // rgb (the value of a value mode, u_value, in all three), opacity at t
 out vec4 o_rect;   // pixels the reference rasterizer may touch: x0, y0, x1, y1 (tile-aligned, end exclusive)
 
 const float SH_C0 = 0.28209479177387814;

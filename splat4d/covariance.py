@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from . import quaternion
+from .constants import TEMPORAL_CULL
 
 RotationConvention = Literal["current", "legacy"]
 ROTATION_CONVENTIONS: tuple[str, ...] = ("current", "legacy")
@@ -157,8 +158,6 @@ def visible_span(var_t: Tensor, cull: float | None = None) -> Tensor:
     """``[N]`` how long each Gaussian is drawn: the width of the time window where its `temporal_marginal` exceeds
     `cull` (default TEMPORAL_CULL, where slices stop drawing it), 2 sqrt(2 ln(1 / cull) var_t), in model time
     units. What the viewer's lifespan mode shows."""
-    from .constants import TEMPORAL_CULL
-
     c = TEMPORAL_CULL if cull is None else cull
     return 2.0 * torch.sqrt(2.0 * math.log(1.0 / c) * var_t)
 

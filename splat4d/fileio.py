@@ -1,13 +1,14 @@
 """Atomic file output: nothing a user made is ever half-written or silently overwritten.
 
-Every writer in splat4d goes through `atomic_write_bytes`, `atomic_path` or `atomic_dir`: data is written to a
-temporary name in the destination folder and renamed into place (`os.replace` is atomic on POSIX), and an existing
-output is refused unless `force` is set.
+Every writer in splat4d goes through `atomic_write_bytes` (`atomic_write_json`), `atomic_path` or `atomic_dir`:
+data is written to a temporary name in the destination folder and renamed into place (`os.replace` is atomic on
+POSIX), and an existing output is refused unless `force` is set.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import tempfile
@@ -78,6 +79,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, force: bool = False
             f.flush()
             os.fsync(f.fileno())
     return Path(path)
+
+
+def atomic_write_json(path: str | os.PathLike, obj, force: bool = False) -> Path:
+    """Write `obj` as indented JSON (with a final newline) to `path` atomically (`atomic_write_bytes`)."""
+    return atomic_write_bytes(path, (json.dumps(obj, indent=2) + "\n").encode(), force)
 
 
 @contextlib.contextmanager

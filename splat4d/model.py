@@ -412,14 +412,19 @@ class CropBox:
         return ((points >= lo) & (points <= hi)).all(-1)
 
 
-def crop(model: Model, box: CropBox, require_any: bool = False) -> Model:
-    """The Gaussians of `model` whose anchor lies in `box` (`CropBox`); with `require_any`, a ModelError
-    instead of an empty model (a command line's box that missed the model)."""
+def crop_mask(model: Model, box: CropBox, require_any: bool = False) -> Tensor:
+    """``[N]`` bool: which Gaussians of `model` `crop` keeps; with `require_any`, a ModelError instead of an
+    all-False mask (a command line's box that missed the model)."""
     with torch.no_grad():
         inside = box.contains(model.anchors())
     _check(not require_any or bool(inside.any()),
            f"the crop box {box.lo} .. {box.hi} holds none of the {len(model):,} Gaussians")
-    return model.select(inside)
+    return inside
+
+
+def crop(model: Model, box: CropBox, require_any: bool = False) -> Model:
+    """The Gaussians of `model` whose anchor lies in `box` (`CropBox`, `crop_mask`)."""
+    return model.select(crop_mask(model, box, require_any))
 
 
 def model_bounds(model: Model, num_times: int = 9, quantile: float = 0.0) -> tuple[Tensor, Tensor]:

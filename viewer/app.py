@@ -20,7 +20,6 @@ option.
 from __future__ import annotations
 
 import ctypes
-import json
 import os
 import re
 import time
@@ -30,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from splat4d.errors import GLError, Splat4DError
-from splat4d.fileio import atomic_path
+from splat4d.fileio import atomic_path, atomic_write_json
 from splat4d.model import CropBox, crop
 
 from .camera_path import CameraKey, CameraPath, dataset_views
@@ -113,7 +112,6 @@ class _CropEditor:
     file: str = "cropped.safetensors"
     overwrite: bool = False
     shown: CropBox | None = None
-    kept: int = 0
     #: how long the last crop took to apply: above LIVE_CROP_MS, a drag applies when it is released
     apply_ms: float = 0.0
 
@@ -256,7 +254,7 @@ class ViewerApp:
         self.renderer.set_model(shown, t)
         self._generation += 1  # sorts of the previous set of Gaussians no longer apply
         self._order, self._requested = None, None
-        ce.shown, ce.kept, ce.apply_ms = box, len(shown), (time.perf_counter() - start) * 1e3
+        ce.shown, ce.apply_ms = box, (time.perf_counter() - start) * 1e3
         self.report["shown_gaussians"] = len(shown)
         return shown
 
@@ -337,8 +335,7 @@ class ViewerApp:
         finally:
             self._shutdown()
         if self.options.report:
-            with atomic_path(self.options.report, force=True) as tmp:
-                tmp.write_text(json.dumps(self.report, indent=2))
+            atomic_write_json(self.options.report, self.report, force=True)
         return self.report
 
     def _shutdown(self) -> None:
@@ -693,7 +690,7 @@ class ViewerApp:
             if imgui.button("Fit to model"):
                 ce.lo, ce.hi = self._extent[0].tolist(), self._extent[1].tolist()
             imgui.same_line()
-            imgui.text(f"{ce.kept:,} of {len(self.model):,} shown")
+            imgui.text(f"{len(self.renderer.model):,} of {len(self.model):,} shown")
             edited = ce.edited()
             option = "--crop " + " ".join(f"{x:.6g}" for x in (*edited.lo, *edited.hi))
             if imgui.button("Copy option"):

@@ -48,7 +48,7 @@ import torch
 from splat4d import quaternion
 from splat4d.cameras import Camera, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
 from splat4d.errors import CameraError
-from splat4d.fileio import atomic_write_bytes
+from splat4d.fileio import atomic_write_json
 
 FORMAT_NAME = "splat4d-camera-path"
 FORMAT_VERSION = 1
@@ -378,7 +378,7 @@ class CameraPath:
         return cls(keys, "z", False, size, fps)
 
     def save(self, path: str | os.PathLike, force: bool = False) -> Path:
-        return atomic_write_bytes(path, (json.dumps(self.to_json(), indent=2) + "\n").encode(), force)
+        return atomic_write_json(path, self.to_json(), force)
 
     @classmethod
     def load(cls, path: str | os.PathLike, time_range: tuple[float, float] | None = None) -> "CameraPath":

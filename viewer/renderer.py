@@ -234,6 +234,15 @@ class SplatRenderer:
         self._typical_speed = None  # the speed mode's colour map top, made on first use (`typical_speed`)
         self._upload(arrays)
 
+    def _default_value_range(self, mode: str, order: SortResult, splats) -> tuple[float, float]:
+        """The colour map's ends when the settings give none: the order's depth range, 0 to the model's typical
+        speed, 0 to its time span (`RenderSettings.value_range`)."""
+        if mode == "speed":
+            return 0.0, self.typical_speed()
+        if mode == "lifespan":
+            return 0.0, splats.duration
+        return order.depth_range
+
     def typical_speed(self) -> float:
         """The model's `splats.typical_speed` (the speed mode's default colour map top), computed once per model
         and only when the speed mode asks (a keyframed model's runs over every key segment)."""
@@ -372,9 +381,7 @@ class SplatRenderer:
             stats.resorted = order is not before
             stats.sort_ms = order.ms if stats.resorted else 0.0
         stats.visible = order.visible
-        stats.value_range = settings.value_range or (
-            (0.0, self.typical_speed()) if settings.mode == "speed"
-            else (0.0, splats.duration) if settings.mode == "lifespan" else order.depth_range)
+        stats.value_range = settings.value_range or self._default_value_range(settings.mode, order, splats)
 
         start = time.perf_counter()
         tg = self._ensure_targets((camera.width, camera.height))

@@ -18,3 +18,12 @@ def apply_crop(model, values):
     from ..model import CropBox, crop
 
     return model if values is None else crop(model, CropBox.of(values), require_any=True)
+
+
+def check_crop(model, values) -> None:
+    """The one-line ModelError `apply_crop` would raise, without making the cropped copy (the viewer crops later,
+    after its window opens)."""
+    from ..model import CropBox, crop_mask
+
+    if values is not None:
+        crop_mask(model, CropBox.of(values), require_any=True)

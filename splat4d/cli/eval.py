@@ -22,10 +22,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from splat4d.errors import DatasetError
-    from splat4d.fileio import atomic_write_bytes, check_writable
+    from splat4d.fileio import atomic_write_json, check_writable
     from splat4d.formats import load_model
     from splat4d.train.data import load_dataset
     from splat4d.train.evaluate import evaluate
@@ -45,5 +43,5 @@ def run(args: argparse.Namespace) -> int:
           f"({res['seconds']:.1f} s)")
     print(res["lpips_note"])
     if args.json:
-        atomic_write_bytes(args.json, (json.dumps(res, indent=2) + "\n").encode(), force=args.force)
+        atomic_write_json(args.json, res, force=args.force)
     return 0

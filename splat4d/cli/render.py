@@ -102,12 +102,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     from splat4d.errors import CameraError
     from splat4d.formats import load_model
     from splat4d.samples.trained import trained_checkpoint
-    from splat4d.fileio import atomic_write_bytes, check_writable
+    from splat4d.fileio import atomic_write_json, check_writable
     from splat4d.viewer.camera_path import CameraPath, nerfstudio_camera_path, path_from_dataset
     from splat4d.viewer.headless import render_to_file
     from splat4d.viewer.options import OptionError, parse_background
@@ -178,8 +176,8 @@ def run(args: argparse.Namespace) -> int:
     summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
                              progress=False if args.quiet else "render", crf=args.crf)
     if args.save_cameras:
-        ns_path = nerfstudio_camera_path(cameras, fps, times, model.time_range)
-        atomic_write_bytes(args.save_cameras, (json.dumps(ns_path, indent=1) + "\n").encode(), args.force)
+        atomic_write_json(args.save_cameras, nerfstudio_camera_path(cameras, fps, times, model.time_range),
+                          args.force)
     import statistics
 
     median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)

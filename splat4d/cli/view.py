@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.viewer.options import OptionError, parse_background
     from splat4d.viewer.renderer import RenderSettings
 
-    from ._crop import apply_crop
+    from ._crop import check_crop
 
     bg, transparent = parse_background(args.background)
     if transparent:
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     if args.cameras:
         dataset_views(args.cameras, args.split)
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
-    apply_crop(ckpt.model, args.crop)  # a bad box, or one that misses the model
+    check_crop(ckpt.model, args.crop)  # a bad box, or one that misses the model
     report = run_app(ckpt, options)
     if args.exit_after is not None:
         print(f"drew {report['frames']} frame(s); time {report['time_start']:.3f} -> {report['time_end']:.3f}")

@@ -211,3 +211,31 @@ def test_frame_stepping_visits_keyframes_else_dataset_frame_times(files):
     step = (t1 - t0) / (30 * app.playback.loop_seconds)
     assert app.playback.frame_times == () and abs(app.playback.step(1) - (0.5 + step)) < 1e-9
     app.renderer.release()
+
+
+def test_app_inspects_a_pixel_given_on_the_command_line(display, files, tmp_path):
+    """``view --inspect X,Y`` (a Ctrl+click at start-up): the report lists the Gaussians that make that pixel, the
+    same ones, weights and alpha as a headless pick of the same view; the inspected Gaussian's 2-sigma ellipsoid
+    (3 rings of 48 segments) is drawn; a pixel outside the window is a one-line error."""
+    from splat4d.viewer.renderer import SplatRenderer, headless_context
+
+    root, model, ckpt = files
+    report_path = tmp_path / "report.json"
+    proc = run_view(display, str(ckpt), "--size", "160x120", "--paused", "--time", "0.5", "--inspect", "80,60",
+                    "--exit-after", "2", "--report", str(report_path))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    got = report["inspected"]
+    assert got["pixel"] == [80, 60] and got["time"] == 0.5 and got["gaussians"] > 1
+    c = got["camera"]
+    cam = Camera(np.array(c["c2w"]), c["fx"], c["fy"], c["cx"], c["cy"], c["width"], c["height"])
+    r = SplatRenderer(headless_context(), model)
+    want = r.pick(cam, 0.5, 80, 60)
+    r.release()
+    assert [h["index"] for h in got["hits"]] == [h.index for h in want.hits]
+    np.testing.assert_allclose([h["weight"] for h in got["hits"]], [h.weight for h in want.hits], atol=1e-6)
+    assert got["top"]["index"] == want.top.index and abs(got["alpha"] - want.alpha) < 1e-6
+    assert got["top"]["attributes"]["index"].startswith(f"{want.top.index:,} of")
+    assert report["overlay_lines"] == 3 * 48
+    bad = run_view(display, str(ckpt), "--size", "160x120", "--inspect", "160,10", "--exit-after", "1")
+    assert bad.returncode == 1 and "outside the 160x120 window" in bad.stderr and "Traceback" not in bad.stderr

@@ -2,8 +2,8 @@
 the moderngl `SplatRenderer`.
 
 Controls: left drag orbits (looks around in fly mode), right or middle drag pans, the wheel zooms, W/A/S/D and
-Q/E fly, Space plays/pauses, R resets the view, F toggles fly mode, P takes a screenshot, Esc quits. Drop a model
-file on the window (or type its path in the panel) to open it.
+Q/E fly, Space plays/pauses, R resets the view, F toggles fly mode, P takes a screenshot, Ctrl+click inspects the
+Gaussians under the cursor, Esc quits. Drop a model file on the window (or type its path in the panel) to open it.
 
 Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the newest finished back-to-front order
 and a new sort is requested whenever the camera, the time or the splat scale changed, so the UI never waits for a
@@ -15,6 +15,10 @@ While the view moves, frames are drawn at a lower resolution when the full one w
 The crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they show most) previews what
 "Save cropped" writes and what ``--crop`` does in convert, render and export; the panel copies the box as that
 option.
+
+Inspect (Ctrl+click, `SplatRenderer.pick`): the Gaussians that make the clicked pixel, ranked by their share of its
+colour, with the chosen one's attributes (`splat4d.viewer.pick.describe`) and its 2-sigma ellipsoid drawn over the
+model as it moves; the panel can jump to the time it shows most.
 """
 
 from __future__ import annotations
@@ -35,8 +39,9 @@ from splat4d.model import CropBox, crop
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
-from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, SELECTED_COLOR, Frustums, LineRenderer,
-                      box_segments, path_segments)
+from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR, Frustums,
+                      LineRenderer, box_segments, ellipsoid_segments, path_segments)
+from .pick import PixelHit, PixelStack, describe, peak_time
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult, view_key
 from .trajectory import frame_model, framing_of, model_extent
@@ -76,6 +81,8 @@ class AppOptions:
     force: bool = False
     #: start with the crop box on, at these 6 numbers (min corner, max corner), as ``--crop``
     crop: tuple[float, ...] | None = None
+    #: start with this window pixel (x, y from the top left) inspected, as a Ctrl+click there
+    inspect: tuple[int, int] | None = None
 
 
 @dataclass
@@ -114,6 +121,8 @@ class _CropEditor:
     shown: CropBox | None = None
     #: how long the last crop took to apply: above LIVE_CROP_MS, a drag applies when it is released
     apply_ms: float = 0.0
+    #: a min/max field is being dragged
+    dragging: bool = False
 
     def edited(self) -> CropBox:
         """The box as edited; a max below the min on some axis counts as the min (an empty slab), so that
@@ -123,6 +132,28 @@ class _CropEditor:
     def box(self) -> CropBox | None:
         """The box to show: `edited`, or None while cropping is off."""
         return self.edited() if self.enabled else None
+
+
+@dataclass
+class _Inspector:
+    """The Inspect panel: the pixel last Ctrl+clicked, the Gaussians that make it, which of them is shown."""
+
+    stack: PixelStack | None = None
+    #: the Gaussian shown: 0 = the largest share of the pixel's colour, 1 the next, ...
+    rank: int = 0
+    #: (index, time, splat scale) -> (`describe` rows, ellipsoid segments), remade when one of them changes
+    cache: tuple | None = None
+    #: open the panel's Inspect section on the next frame (a new pick)
+    reveal: bool = False
+
+    @property
+    def ranked(self) -> list[PixelHit]:
+        return sorted(self.stack.hits, key=lambda h: -h.weight) if self.stack is not None else []
+
+    @property
+    def hit(self) -> PixelHit | None:
+        ranked = self.ranked
+        return ranked[min(self.rank, len(ranked) - 1)] if ranked else None
 
 
 #: crops that apply faster than this follow the drag live; slower ones (large models) apply on release
@@ -151,6 +182,8 @@ class ViewerApp:
         self._stats = _Stats()
         self._path = _PathEditor()
         self._crop = _CropEditor()
+        self._inspect = _Inspector()
+        self._crop_tab_first = self.options.crop is not None  # --crop: show the Crop tab at start-up
         self._views = []
         self._view_index = 0
         self._show_cameras = True
@@ -256,7 +289,41 @@ class ViewerApp:
         self._order, self._requested = None, None
         ce.shown, ce.apply_ms = box, (time.perf_counter() - start) * 1e3
         self.report["shown_gaussians"] = len(shown)
+        self._inspect = _Inspector()  # its indices were into the previous set of Gaussians
         return shown
+
+    def inspect(self, camera, t: float, x: int, y: int) -> PixelStack:
+        """Pick pixel (x, y) of `camera`'s image at time `t` (`SplatRenderer.pick`) and show its Gaussians in the
+        Inspect panel, the largest share first."""
+        stack = self.renderer.pick(camera, t, x, y, self.settings)
+        self._inspect = _Inspector(stack, reveal=True)
+        top = stack.top
+        self.status = (f"pixel ({x}, {y}): {len(stack.hits)} Gaussian(s), alpha {stack.alpha:.3f}" if top else
+                       f"pixel ({x}, {y}): background, no Gaussian there")
+        self.report["inspected"] = {
+            "pixel": [x, y], "time": t, "camera": camera_to_json(camera), "alpha": stack.alpha,
+            "color": list(stack.color), "gaussians": len(stack.hits),
+            "hits": [{"index": h.index, "weight": h.weight, "alpha": h.alpha, "depth": h.depth} for h in stack.hits],
+            "top": None if top is None else {"index": top.index, "weight": top.weight,
+                                             "attributes": dict(describe(self.renderer.model, top.index, t))}}
+        return stack
+
+    def _inspected(self, t: float) -> tuple[list, np.ndarray] | None:
+        """(`describe` rows, 2-sigma ellipsoid segments at the splat scale) of the inspected Gaussian at `t`."""
+        ins = self._inspect
+        hit = ins.hit
+        if hit is None:
+            return None
+        key = (hit.index, t, self.settings.splat_scale)
+        if ins.cache is None or ins.cache[0] != key:
+            import torch
+
+            model = self.renderer.model
+            with torch.no_grad():
+                g = model.select(torch.tensor([hit.index])).slice(t)
+            cov = g.covariances[0].double().numpy() * self.settings.splat_scale ** 2
+            ins.cache = (key, describe(model, hit.index, t), ellipsoid_segments(g.means[0].double().numpy(), cov))
+        return ins.cache[1], ins.cache[2]
 
     def _save_cropped(self) -> None:
         from splat4d.checkpoint import save_checkpoint
@@ -305,6 +372,9 @@ class ViewerApp:
                 if self.options.play_path:
                     self._path.playing, self._path.time = True, self._path.path.start
             self.report.update(time_start=self.playback.time, started=time.time())
+            if self.options.inspect is not None:
+                width, height = glfw.get_framebuffer_size(self._window)
+                self.inspect(*self._current_view(width, height), *self.options.inspect)
             last = time.perf_counter()
             frames = 0
             while not glfw.window_should_close(self._window):
@@ -439,7 +509,9 @@ class ViewerApp:
         ce = self._crop
         box = ce.box() if ce.show else None
         box_lines = box_segments(box.lo, box.hi) if box is not None else np.zeros((0, 2, 3))
-        for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR)):
+        inspected = self._inspected(self.playback.time)
+        pick_lines = inspected[1] if inspected is not None else np.zeros((0, 2, 3))
+        for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR), (pick_lines, PICK_COLOR)):
             if len(lines):
                 segs = np.concatenate([lines, segs])
                 colors = np.concatenate([np.broadcast_to(np.asarray(color, np.float32), (len(lines), 3)), colors])
@@ -508,10 +580,18 @@ class ViewerApp:
 
         io = imgui.get_io()
         c = self.controller
-        _, height = glfw.get_framebuffer_size(self._window)
+        width, height = glfw.get_framebuffer_size(self._window)
         if not io.want_capture_mouse:
             d = io.mouse_delta
-            if imgui.is_mouse_down(imgui.MouseButton_.left) and (d.x or d.y):
+            if io.key_ctrl and imgui.is_mouse_clicked(imgui.MouseButton_.left):
+                # cursor in window coordinates -> framebuffer pixels (they differ on high-DPI screens)
+                win_w, win_h = glfw.get_window_size(self._window)
+                x = int(io.mouse_pos.x * width / max(win_w, 1))
+                y = int(io.mouse_pos.y * height / max(win_h, 1))
+                if 0 <= x < width and 0 <= y < height:
+                    camera, t = self._current_view(width, height)
+                    self._attempt(lambda: self.inspect(camera, t, x, y))
+            elif imgui.is_mouse_down(imgui.MouseButton_.left) and not io.key_ctrl and (d.x or d.y):
                 c.look(d.x, d.y) if self._fly else c.orbit(d.x, d.y)
                 self._path.playing = False
             if (imgui.is_mouse_down(imgui.MouseButton_.right) or imgui.is_mouse_down(imgui.MouseButton_.middle)) \
@@ -550,7 +630,7 @@ class ViewerApp:
         from imgui_bundle import imgui
 
         imgui.set_next_window_pos((10, 10), imgui.Cond_.first_use_ever)
-        imgui.set_next_window_size((330, 0), imgui.Cond_.first_use_ever)
+        imgui.set_next_window_size((370, 0), imgui.Cond_.first_use_ever)
         imgui.begin("splat4d")
         st, pb, s, c = self._stats, self.playback, self.settings, self.controller
         imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
@@ -577,6 +657,32 @@ class ViewerApp:
             pb.time, pb.playing = value, False
         _, pb.speed = imgui.slider_float("speed", pb.speed, 0.0, 4.0, "%.2fx")
 
+        # the rest in tabs: as sections they outgrew a 720-pixel window
+        if imgui.begin_tab_bar("##sections"):
+            for name, draw, selected in (("View", self._draw_view_ui, False),
+                                         ("Path", self._draw_path_ui, False),
+                                         ("Crop", self._draw_crop_ui, self._crop_tab_first),
+                                         ("Inspect", self._draw_inspect_ui, self._inspect.reveal)):
+                flags = imgui.TabItemFlags_.set_selected if selected else 0
+                if imgui.begin_tab_item(name, None, flags)[0]:
+                    draw()
+                    imgui.end_tab_item()
+            self._crop_tab_first = self._inspect.reveal = False
+            imgui.end_tab_bar()
+        self._apply_crop_edits()
+
+        imgui.separator_text("File")
+        changed, self._open_text = imgui.input_text("##open", getattr(self, "_open_text", ""))
+        imgui.same_line()
+        if imgui.button("Open"):
+            self._pending_open = self._open_text
+        imgui.text_wrapped(self.status or "drop a model file on the window to open it")
+        imgui.end()
+
+    def _draw_view_ui(self) -> None:
+        from imgui_bundle import imgui
+
+        st, pb, s, c = self._stats, self.playback, self.settings, self.controller
         imgui.separator_text("Camera")
         if imgui.button("Reset (R)"):
             c.reset(self.framing)
@@ -624,24 +730,10 @@ class ViewerApp:
         if imgui.button("Screenshot (P)"):
             self._screenshot_request = self._next_screenshot_name()
 
-        self._draw_path_ui()
-        self._draw_crop_ui()
-
-        imgui.separator_text("File")
-        changed, self._open_text = imgui.input_text("##open", getattr(self, "_open_text", ""))
-        imgui.same_line()
-        if imgui.button("Open"):
-            self._pending_open = self._open_text
-        imgui.text_wrapped(self.status or "drop a model file on the window to open it")
-        imgui.end()
-
     def _draw_path_ui(self) -> None:
         from imgui_bundle import imgui
 
         pe = self._path
-        imgui.set_next_item_open(True, imgui.Cond_.once)
-        if not imgui.collapsing_header("Camera path"):
-            return
         n = len(pe.path.keys) if pe.path else 0
         imgui.text(f"{n} keyframe(s)" + (f", {pe.path.duration:.1f} s" if n else ""))
         _, pe.key_interval = imgui.slider_float("key spacing", pe.key_interval, 0.1, 5.0, "%.1f s")
@@ -676,35 +768,76 @@ class ViewerApp:
         from imgui_bundle import imgui
 
         ce = self._crop
-        editing = False
-        imgui.set_next_item_open(ce.enabled, imgui.Cond_.once)  # open at start-up when --crop turned it on
-        if imgui.collapsing_header("Crop"):
-            _, ce.enabled = imgui.checkbox("crop to box", ce.enabled)
-            imgui.same_line()
-            _, ce.show = imgui.checkbox("show box", ce.show)
-            step = max(self.framing.radius, 1e-3) / 200.0
-            _, ce.lo = imgui.drag_float3("min", ce.lo, step, 0.0, 0.0, "%.3f")
-            editing = imgui.is_item_active()
-            _, ce.hi = imgui.drag_float3("max", ce.hi, step, 0.0, 0.0, "%.3f")
-            editing = editing or imgui.is_item_active()
-            if imgui.button("Fit to model"):
-                ce.lo, ce.hi = self._extent[0].tolist(), self._extent[1].tolist()
-            imgui.same_line()
-            imgui.text(f"{len(self.renderer.model):,} of {len(self.model):,} shown")
-            edited = ce.edited()
-            option = "--crop " + " ".join(f"{x:.6g}" for x in (*edited.lo, *edited.hi))
-            if imgui.button("Copy option"):
-                imgui.set_clipboard_text(option)
-            if imgui.is_item_hovered():
-                imgui.set_tooltip(f"{option}\n(for splat4d convert / render / view)")
-            imgui.same_line()
-            if imgui.button("Save cropped"):
-                self._attempt(self._save_cropped)
-            imgui.same_line()
-            _, ce.overwrite = imgui.checkbox("overwrite##crop", ce.overwrite)
-            _, ce.file = imgui.input_text("crop file", ce.file)
-        if ce.box() != ce.shown and (not editing or ce.apply_ms < LIVE_CROP_MS):
+        _, ce.enabled = imgui.checkbox("crop to box", ce.enabled)
+        imgui.same_line()
+        _, ce.show = imgui.checkbox("show box", ce.show)
+        step = max(self.framing.radius, 1e-3) / 200.0
+        _, ce.lo = imgui.drag_float3("min", ce.lo, step, 0.0, 0.0, "%.3f")
+        ce.dragging = imgui.is_item_active()
+        _, ce.hi = imgui.drag_float3("max", ce.hi, step, 0.0, 0.0, "%.3f")
+        ce.dragging = ce.dragging or imgui.is_item_active()
+        if imgui.button("Fit to model"):
+            ce.lo, ce.hi = self._extent[0].tolist(), self._extent[1].tolist()
+        imgui.same_line()
+        imgui.text(f"{len(self.renderer.model):,} of {len(self.model):,} shown")
+        edited = ce.edited()
+        option = "--crop " + " ".join(f"{x:.6g}" for x in (*edited.lo, *edited.hi))
+        if imgui.button("Copy option"):
+            imgui.set_clipboard_text(option)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip(f"{option}\n(for splat4d convert / render / view)")
+        imgui.same_line()
+        if imgui.button("Save cropped"):
+            self._attempt(self._save_cropped)
+        imgui.same_line()
+        _, ce.overwrite = imgui.checkbox("overwrite##crop", ce.overwrite)
+        _, ce.file = imgui.input_text("crop file", ce.file)
+
+    def _apply_crop_edits(self) -> None:
+        """Show the edited box: at once when cropping is quick, else when the drag is released."""
+        ce = self._crop
+        if ce.box() != ce.shown and (not ce.dragging or ce.apply_ms < LIVE_CROP_MS):
             self._apply_crop(self.playback.time)
+
+    def _draw_inspect_ui(self) -> None:
+        from imgui_bundle import imgui
+
+        ins = self._inspect
+        if ins.stack is None:
+            imgui.text_wrapped("Ctrl+click the model: the Gaussians that make that pixel, largest share first")
+            return
+        x, y = ins.stack.pixel
+        ranked = ins.ranked
+        imgui.text(f"pixel ({x}, {y}): alpha {ins.stack.alpha:.3f}, {len(ranked)} Gaussian(s)")
+        if not ranked:
+            return
+        if len(ranked) > 1:
+            changed, rank = imgui.slider_int("by share", ins.rank + 1, 1, len(ranked), f"%d of {len(ranked)}")
+            if changed:
+                ins.rank = rank - 1
+        hit = ins.hit
+        imgui.text(f"share of the pixel {hit.weight:.3f}  alpha there {hit.alpha:.3f}")
+        imgui.color_button("##colour", (*[min(max(c, 0.0), 1.0) for c in hit.color], 1.0))
+        imgui.same_line()
+        imgui.text("colour (" + ", ".join(f"{c:.3f}" for c in hit.color) + f")  depth {hit.depth:.4g}")
+        inspected = self._inspected(self.playback.time)
+        if inspected is not None and imgui.begin_table("##gaussian", 2):
+            imgui.table_setup_column("attribute", imgui.TableColumnFlags_.width_fixed)
+            imgui.table_setup_column("value", imgui.TableColumnFlags_.width_stretch)
+            for label, value in inspected[0]:
+                imgui.table_next_row()
+                imgui.table_next_column()
+                imgui.text(label)
+                imgui.table_next_column()
+                imgui.text(value)
+            imgui.end_table()
+        if imgui.button("Go to peak time"):
+            self.playback.time, self.playback.playing = peak_time(self.renderer.model, hit.index), False
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("pause at the time this Gaussian shows most")
+        imgui.same_line()
+        if imgui.button("Clear##inspect"):
+            self._inspect = _Inspector()
 
 
 def run_app(source, options: AppOptions | None = None) -> dict:

@@ -38,6 +38,14 @@ def parse_vector(text: str, n: int = 3, what: str = "vector") -> tuple[float, ..
     return v
 
 
+def parse_pixel(text: str) -> tuple[int, int]:
+    """'640,360' -> (640, 360): a pixel's column and row from the top-left corner."""
+    v = parse_vector(text, 2, "pixel")
+    if not all(x >= 0 and x == int(x) for x in v):
+        raise OptionError(f"pixel must be two whole numbers X,Y from the top-left corner, got {text!r}")
+    return int(v[0]), int(v[1])
+
+
 def parse_background(text: str | None) -> tuple[tuple[float, float, float] | None, bool]:
     """(rgb or None for "the checkpoint's", transparent) from 'white', 'black', 'transparent', 'r,g,b' in [0, 1]
     or '#rrggbb'."""

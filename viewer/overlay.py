@@ -1,5 +1,5 @@
-"""Line overlays of the desktop app: the camera path being edited, camera frustums and the crop box, drawn over
-the splats.
+"""Line overlays of the desktop app: the camera path being edited, camera frustums, the crop box and the inspected
+Gaussian's ellipsoid, drawn over the splats.
 
 The geometry is pure numpy (``[M, 2, 3]`` world-space segments, one row per line segment); `LineRenderer` draws
 segments with per-segment colours through ``shaders/lines.glsl``, which projects them with the splats' own pinhole
@@ -24,6 +24,7 @@ KEY_COLOR = (1.0, 0.5, 0.1)
 DATASET_COLOR = (0.35, 0.75, 1.0)
 SELECTED_COLOR = (1.0, 1.0, 1.0)
 CROP_COLOR = (0.3, 1.0, 0.4)
+PICK_COLOR = (1.0, 0.2, 0.9)
 
 
 def frustum_segments(camera: Camera, depth: float) -> np.ndarray:
@@ -51,6 +52,17 @@ def box_segments(lo, hi) -> np.ndarray:
     corners = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)] for k in range(8)])
     # corners k and k ^ (1 << a) differ along axis a only: one edge per pair
     return np.array([(corners[k], corners[k | 1 << a]) for a in range(3) for k in range(8) if not (k >> a) & 1])
+
+
+def ellipsoid_segments(mean, cov, sigmas: float = 2.0, samples: int = 48) -> np.ndarray:
+    """``[3 * samples, 2, 3]`` segments: the three principal ellipses of the `sigmas`-sigma ellipsoid of a 3D Gaussian
+    (`mean` [3], covariance `cov` [3, 3]), each in the plane of two of its principal axes."""
+    evals, evecs = np.linalg.eigh(np.asarray(cov, np.float64))
+    axes = evecs * (sigmas * np.sqrt(np.clip(evals, 0.0, None)))  # columns: principal axes, scaled
+    angle = np.linspace(0.0, 2.0 * np.pi, samples + 1)
+    rings = [np.asarray(mean, np.float64) + np.outer(np.cos(angle), axes[:, i]) + np.outer(np.sin(angle), axes[:, j])
+             for i, j in ((0, 1), (1, 2), (2, 0))]
+    return np.concatenate([polyline_segments(r) for r in rings])
 
 
 def polyline_segments(points: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -37,6 +37,7 @@ from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
 from . import splats as splatlib
+from .pick import PixelStack, composite_pixel
 from .sorting import SortKey, SortResult, depth_order
 
 #: Display modes, in the order of the app's combo box.
@@ -576,6 +577,38 @@ class SplatRenderer:
                       u_background=tuple(float(c) * bg_alpha for c in settings.background) + (bg_alpha,),
                       u_value_range=value_range)
         self._resolve_vao.render(self.ctx.TRIANGLES, vertices=3)
+
+    # --- picking ----------------------------------------------------------------------------------------------
+    @with_context
+    def pick(self, camera: Camera, t: float, x: int, y: int, settings: RenderSettings | None = None) -> PixelStack:
+        """The Gaussians that make pixel (x, y) (column, row from the top left) of `camera`'s image at time `t`,
+        nearest first with their weights (`splat4d.viewer.pick`). Runs the pre-pass on the Gaussians whose screen
+        box holds the pixel, so colours and footprints are exactly those drawn (with `settings`' splat scale and
+        SH degree; in the colour mode whatever `settings.mode` is)."""
+        settings = replace(settings or RenderSettings(), mode="color")
+        if not (0 <= x < camera.width and 0 <= y < camera.height):
+            raise GLError(f"pixel ({x}, {y}) is outside the {camera.width}x{camera.height} image")
+        splats = self.splats_at(t)
+        order = self.sort(camera, t, settings.splat_scale)
+        px, py = x + 0.5, y + 0.5
+        b = order.boxes[::-1]  # nearest first
+        near = (np.abs(px - b[:, 0]) <= b[:, 2]) & (np.abs(py - b[:, 1]) <= b[:, 3])
+        idx = np.ascontiguousarray(order.order[::-1][near], dtype=np.uint32)
+        if not idx.shape[0]:
+            return composite_pixel(np.zeros((0, 16), np.float32), idx, (x, y))
+        self._ibo.write(idx.tobytes())
+        self._sh_tex.use(0)
+        self._set_pre_uniforms(camera, t, settings, splats)
+        # draws need a complete framebuffer even with rasterizer discard (an EGL context has none of its own);
+        # any target will do, and the last image is left as it is
+        (self._targets or self._ensure_targets((camera.width, camera.height))).accum_fbo.use()
+        out = self.ctx.buffer(reserve=_SPLAT_BYTES * idx.shape[0])
+        try:
+            self._pre_vao.transform(out, self.ctx.POINTS, vertices=idx.shape[0])
+            records = np.frombuffer(out.read(), np.float32).reshape(-1, 16)
+        finally:
+            out.release()
+        return composite_pixel(records, idx, (x, y))
 
     # --- read-back --------------------------------------------------------------------------------------------
     @with_context

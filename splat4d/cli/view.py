@@ -10,6 +10,7 @@ DESCRIPTION = """Open a model in a window with a Dear ImGui control panel.
 
 mouse: left drag orbit (look in fly mode), right/middle drag pan, wheel zoom
 keys:  W/A/S/D/Q/E fly (Shift: faster), Space play/pause, R reset view, F fly mode, P screenshot, Esc quit
+Ctrl+click: inspect the Gaussians that make that pixel (Inspect panel)
 Drop a model file on the window to open it. Needs a display (run under Xvfb on a server).
 
 With no CKPT it opens the bundled trained 'spinner' sample.
@@ -20,11 +21,13 @@ examples:
   splat4d view model.safetensors --cameras data/spinner --background white
   splat4d view model.safetensors --path tour.json --paused --time 0.25
   splat4d view model.safetensors --crop -0.5 -0.5 0 0.5 0.5 1     (the panel's crop box on, at this box)
+  splat4d view model.safetensors --paused --time 0.3 --inspect 640,360 --exit-after 2 --report px.json
+      (which Gaussians make the window's centre pixel at t = 0.3, and the largest one's attributes)
 """
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import argtype, parse_size
+    from splat4d.viewer.options import argtype, parse_pixel, parse_size
 
     from ._crop import add_crop_arg
 
@@ -59,10 +62,14 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-adaptive-resolution", action="store_true",
                    help="keep the full resolution while the view moves (by default fewer pixels are drawn while "
                         "moving when a frame would take over 40 ms)")
+    p.add_argument("--inspect", type=argtype(parse_pixel), metavar="X,Y",
+                   help="start with this window pixel inspected, as if Ctrl+clicked (column, row from the top left; "
+                        "--report lists its Gaussians)")
     a = p.add_argument_group("automation (scripted captures, tests)")
     a.add_argument("--exit-after", type=int, default=None, metavar="FRAMES", help="close after this many frames")
     a.add_argument("--screenshot", metavar="PNG", help="with --exit-after: save the last frame here")
-    a.add_argument("--report", metavar="JSON", help="write frame count, times and the screenshot's camera here")
+    a.add_argument("--report", metavar="JSON",
+                   help="write frame count, times, the screenshot's camera and the --inspect pixel's Gaussians here")
     a.add_argument("--force", action="store_true", help="overwrite an existing --screenshot file")
 
 
@@ -89,6 +96,9 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--exit-after must be at least 1, got {args.exit_after}")
     if args.screenshot:
         check_writable(args.screenshot, args.force)
+    if args.inspect and not (args.inspect[0] < args.size[0] and args.inspect[1] < args.size[1]):
+        raise OptionError(f"--inspect {args.inspect[0]},{args.inspect[1]} is outside the {args.size[0]}x"
+                          f"{args.size[1]} window")
     if not any(abs(args.render_scale - step) < 1e-9 for step in RESOLUTION_STEPS):
         raise OptionError(f"--render-scale must be a multiple of 1/8 between 0.25 and 1 (0.25, 0.375, 0.5, ... 1), "
                           f"got {args.render_scale}")
@@ -99,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
                          split=args.split, camera_path=args.path, play_path=args.play_path,
                          screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
                          adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
-                         screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop)
+                         screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop,
+                         inspect=args.inspect)
     # fail with a one-line error before opening a window
     if args.path:
         CameraPath.load(args.path)

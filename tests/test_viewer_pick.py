@@ -1,0 +1,154 @@
+"""Inspect: which Gaussians make a pixel (`SplatRenderer.pick`), what one Gaussian is (`pick.describe`), and the
+app's Inspect state (Ctrl+click) on a headless renderer."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from splat4d.cameras import look_at, orbit
+from splat4d.checkpoint import save_checkpoint
+from splat4d.covariance import condition_on_time, visible_span
+from splat4d.model import CropBox
+from splat4d.viewer.overlay import ellipsoid_segments
+from splat4d.viewer.pick import composite_pixel, describe, peak_time
+from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
+from splat4d.viewer.synthetic import synthetic_model
+from test_model import keyframed
+from test_viewer_sort import BLUE, RED, swapping_pair
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return headless_context()
+
+
+def test_pick_decomposes_the_drawn_pixel(ctx):
+    """The picked Gaussians' weights sum to the pixel's alpha in the GL accumulation, and their weighted colours to
+    its colour: the pick is what the renderer drew there, Gaussian by Gaussian (native and keyframed models)."""
+    cam = orbit(20, 30, 2.0, fov_deg=40, width=96, height=80)
+    native = synthetic_model(3000, seed=3, sh_degree=1, radius=0.4, scale=0.03, speed=0.3)
+    keyed = keyframed(3, 400)
+    keyed_cam = orbit(20, 30, 9.0, fov_deg=40, width=96, height=80)
+    for model, camera, t in ((native, cam, 0.4), (keyed, keyed_cam, 0.3)):
+        r = SplatRenderer(ctx, model)
+        r.render(camera, t, RenderSettings(background=(0.0, 0.0, 0.0)))
+        acc = r.read_accumulation()
+        covered = 0
+        for x, y in ((48, 40), (30, 20), (60, 50), (70, 33), (5, 75), (40, 60)):
+            stack = r.pick(camera, t, x, y)
+            weights = [h.weight for h in stack.hits]
+            assert math.isclose(sum(weights), stack.alpha, abs_tol=1e-9)
+            # the reference stops a saturated pixel 1e-4 early; the GL pass drew this view in one stage
+            assert abs(stack.alpha - acc[y, x, 3]) < 2e-4, (x, y)
+            np.testing.assert_allclose(stack.color, acc[y, x, :3], atol=2e-4)
+            if stack.hits:
+                covered += 1
+                assert stack.top.weight == max(weights)
+                assert all(a.depth <= b.depth for a, b in zip(stack.hits, stack.hits[1:]))  # nearest first
+        assert covered >= 3  # the pixels were not all background
+        r.release()
+
+
+def test_pick_follows_the_order_at_time_t(ctx):
+    """Two Gaussians that swap places over time: the centre pixel's front Gaussian (and largest share) is red at
+    t = 0 and blue at t = 1, as drawn."""
+    model = swapping_pair()
+    cam = look_at((-4.0, 0.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=30, width=32, height=32)
+    r = SplatRenderer(ctx, model)
+    for t, front in ((0.0, RED), (1.0, BLUE)):
+        stack = r.pick(cam, t, 16, 16)
+        assert [h.index for h in stack.hits][:1] == [front] and stack.top.index == front
+        assert stack.top.color[2 * front] > 0.9  # red (0) or blue (2) channel
+    # a translucent front Gaussian gives the pixel less than the opaque one behind it
+    faint = swapping_pair()
+    faint.opacity_logits = torch.tensor([-2.0, 5.0], dtype=torch.float64)  # red: opacity 0.12
+    r.set_model(faint)
+    stack = r.pick(cam, 0.0, 16, 16)
+    assert [h.index for h in stack.hits] == [RED, BLUE] and stack.top.index == BLUE
+    assert stack.hits[0].weight < 0.2 < stack.hits[1].weight
+    assert not r.pick(cam, 0.0, 0, 0).hits and r.pick(cam, 0.0, 0, 0).top is None  # background
+    with pytest.raises(Exception, match="outside"):
+        r.pick(cam, 0.0, 32, 5)
+    r.release()
+
+
+def test_composite_stops_where_the_reference_does():
+    """Front to back, the Gaussian that would take T below 1e-4 is left out (and all behind it)."""
+    rec = np.zeros((4, 16), np.float32)
+    rec[:, 0:2] = 10.0  # centre at pixel (9.5, 9.5)... the pixel (10, 10) centre is 0.5 px away
+    rec[:, 2] = 3.0
+    rec[:, 3] = [1.0, 2.0, 3.0, 4.0]
+    rec[:, 4:8] = [100.0, 0.0, 0.0, 100.0]  # huge std-devs: alpha = opacity at the centre
+    rec[:, 8:11] = 1.0
+    rec[:, 11] = 0.99
+    rec[:, 12:16] = [0.0, 0.0, 32.0, 32.0]
+    stack = composite_pixel(rec, np.arange(4), (10, 10))
+    assert [h.index for h in stack.hits] == [0, 1]  # T: 1 -> 0.01 -> 1e-4 (kept, not below) -> 1e-6 (stopped)
+    rec[1, 12:16] = [16.0, 16.0, 32.0, 32.0]  # Gaussian 1's tile rectangle misses the pixel
+    assert [h.index for h in composite_pixel(rec, np.arange(4), (10, 10)).hits] == [0, 2]
+
+
+def test_describe_and_peak_time_read_the_model():
+    model = synthetic_model(50, seed=5, sh_degree=1, radius=0.4, scale=0.03, speed=0.3)
+    i, t = 7, 0.3
+    rows = dict(describe(model, i, t))
+    g = model.slice(t)
+    pos = [float(v) for v in rows["position"].strip("()").split(",")]
+    np.testing.assert_allclose(pos, g.means[i].detach().numpy(), rtol=1e-3, atol=1e-4)
+    _, _, var_t = condition_on_time(model.covariance_4d())
+    assert rows["drawn for"].startswith(f"{float(visible_span(var_t)[i]):.4g}")
+    assert f"at t = {float(model.t_means[i]):.4g}" in rows["peak opacity"]
+    assert rows["index"] == "7 of 50"
+    t0, t1 = model.time_range
+    assert peak_time(model, i) == min(max(float(model.t_means[i]), t0), t1)
+    keyed = keyframed(3, 5)
+    assert peak_time(keyed, 2) == float(keyed.times[int(keyed.opacities[:, 2].argmax())])
+    assert dict(describe(keyed, 2, 0.25))["keyframes"] == "3"
+
+
+def test_ellipsoid_rings_lie_at_two_sigma():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(3, 3))
+    cov = a @ a.T + 0.1 * np.eye(3)
+    mean = np.array([1.0, -2.0, 0.5])
+    segs = ellipsoid_segments(mean, cov, sigmas=2.0, samples=24)
+    assert segs.shape == (72, 2, 3)
+    d = segs.reshape(-1, 3) - mean
+    mahalanobis = np.sqrt(np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d))
+    np.testing.assert_allclose(mahalanobis, 2.0, rtol=1e-9)
+
+
+def test_app_inspects_a_pixel_and_forgets_it_on_crop(tmp_path):
+    """The app's Ctrl+click handler: `inspect` fills the panel and the report; the inspected Gaussian's ellipsoid
+    and rows follow the time; a crop (new indices) clears it."""
+    from splat4d.viewer.app import AppOptions, ViewerApp
+
+    model = synthetic_model(2000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
+    ckpt = save_checkpoint(tmp_path / "m.safetensors", model)
+    app = ViewerApp(ckpt, AppOptions(play=False))
+    app.renderer = SplatRenderer(headless_context())
+    app.load(ckpt)
+    cam = orbit(20, 30, 2.0, fov_deg=40, width=64, height=64)
+    stack = app.inspect(cam, 0.5, 32, 32)
+    top = stack.top
+    assert top is not None and app.report["inspected"]["top"]["index"] == top.index
+    assert app.report["inspected"]["gaussians"] == len(stack.hits) > 1
+    app.playback.time = 0.5
+    rows, segs = app._inspected(0.5)
+    assert dict(rows)["index"].startswith(f"{top.index:,} of")
+    mean = model.slice(0.5).means[top.index].detach().numpy()
+    np.testing.assert_allclose(segs.reshape(-1, 3).mean(0), mean, atol=1e-6)  # rings centred on it at t
+    later = app._inspected(0.9)[1].reshape(-1, 3).mean(0)
+    np.testing.assert_allclose(later, model.slice(0.9).means[top.index].detach().numpy(), atol=1e-6)
+    app._inspect.rank = 1  # the next largest share
+    assert app._inspect.hit.weight <= top.weight and app._inspect.hit.index != top.index
+    app._crop.enabled = True
+    app._crop.lo, app._crop.hi = [-0.2] * 3, [0.2] * 3
+    app._apply_crop(0.5)
+    assert app._inspect.stack is None and app._inspected(0.5) is None
+    assert CropBox((-0.2,) * 3, (0.2,) * 3) == app._crop.shown
+    app.renderer.release()

@@ -1,0 +1,136 @@
+"""Which Gaussians make a pixel, and what one Gaussian is (the desktop app's Inspect tool).
+
+`SplatRenderer.pick` runs the renderer's own pre-pass on the Gaussians whose screen box holds the pixel and hands
+their footprints (the records ``splat_draw.glsl`` draws) to `composite_pixel`, which evaluates the splat fragment
+shader at that pixel and composites front to back as the reference rasterizer does. So the answer is what the
+viewer draws there, Gaussian by Gaussian: the weights alpha_i T_i sum to the pixel's alpha and the weighted colours
+to its colour.
+
+`describe` lists one Gaussian's attributes at a time t from the model itself (its `slice`), for the panel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
+from splat4d.covariance import condition_on_time, visible_span
+from splat4d.model import Gaussians4D
+
+
+@dataclass(frozen=True)
+class PixelHit:
+    """One Gaussian's part of a pixel.
+
+    Attributes:
+        index: the Gaussian's index in the model drawn (after any crop).
+        alpha: its alpha at the pixel.
+        weight: alpha * T, the transmittance left in front of it: its share of the pixel's colour.
+        depth: camera depth of its mean at the time picked.
+        color: its colour seen from the camera (rgb, before weighting).
+    """
+
+    index: int
+    alpha: float
+    weight: float
+    depth: float
+    color: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PixelStack:
+    """Every Gaussian that adds to one pixel, front to back, and their composite.
+
+    Attributes:
+        pixel: (x, y), column and row from the top-left corner.
+        hits: the contributing Gaussians, nearest first (weight > 0).
+        alpha: the pixel's alpha, 1 - T = sum of the weights.
+        color: the pixel's premultiplied colour, sum of weight * colour.
+    """
+
+    pixel: tuple[int, int]
+    hits: tuple[PixelHit, ...]
+    alpha: float
+    color: tuple[float, float, float]
+
+    @property
+    def top(self) -> PixelHit | None:
+        """The Gaussian that gives the pixel most of its colour (largest weight), or None over the background."""
+        return max(self.hits, key=lambda h: h.weight) if self.hits else None
+
+
+def footprint_alpha(records: np.ndarray, pixel: tuple[float, float]) -> np.ndarray:
+    """``[K]`` alpha of each pre-processed Gaussian at the pixel centre `pixel` (x, y, y down): the splat fragment
+    shader's formula (splat_draw.glsl). `records`: ``[K, 16]`` float32 as the pre-pass writes them (centre, radius,
+    depth; the two 2D axes in pixels per std-dev; rgb, opacity at t; the tile rectangle)."""
+    r = np.asarray(records, np.float64)
+    centre, axes, opacity, rect = r[:, 0:2], r[:, 4:8], r[:, 11], r[:, 12:16]
+    culled = r[:, 2] <= 0.0
+    # uv = [a1 a2]^-1 (p - c): the offset in std-devs along the principal axes
+    a, c, b, d = axes[:, 0], axes[:, 1], axes[:, 2], axes[:, 3]  # columns a1 = (a, c), a2 = (b, d)
+    det = a * d - b * c
+    det = np.where(culled | (det == 0.0), 1.0, det)
+    dx, dy = pixel[0] - centre[:, 0], pixel[1] - centre[:, 1]
+    u, v = (d * dx - b * dy) / det, (a * dy - c * dx) / det
+    alpha = np.minimum(MAX_ALPHA, opacity * np.exp(-0.5 * (u * u + v * v)))
+    inside = (pixel[0] >= rect[:, 0]) & (pixel[1] >= rect[:, 1]) & (pixel[0] < rect[:, 2]) & (pixel[1] < rect[:, 3])
+    return np.where(culled | ~inside | (alpha < ALPHA_THRESHOLD), 0.0, alpha)
+
+
+def composite_pixel(records: np.ndarray, indices: np.ndarray, pixel: tuple[int, int]) -> PixelStack:
+    """Composite pre-processed Gaussians (`footprint_alpha`), given nearest first, at integer `pixel` (x, y):
+    weight_i = alpha_i T_i, stopping before the Gaussian that would take T below TRANSMITTANCE_THRESHOLD, as the
+    reference rasterizer does. `indices`: each record's Gaussian in the model."""
+    x, y = int(pixel[0]), int(pixel[1])
+    alpha = footprint_alpha(records, (x + 0.5, y + 0.5))
+    hits, T, rgb = [], 1.0, np.zeros(3)
+    for k in np.flatnonzero(alpha > 0.0):
+        a = float(alpha[k])
+        after = T * (1.0 - a)
+        if after < TRANSMITTANCE_THRESHOLD:
+            break
+        color = tuple(float(v) for v in records[k, 8:11])
+        hits.append(PixelHit(int(indices[k]), a, a * T, float(records[k, 3]), color))
+        rgb += a * T * np.asarray(color)
+        T = after
+    return PixelStack((x, y), tuple(hits), 1.0 - T, tuple(float(v) for v in rgb))
+
+
+def describe(model, index: int, t: float) -> list[tuple[str, str]]:
+    """(label, value) rows describing Gaussian `index` of `model` at time `t`, for the app's Inspect panel: where
+    it is, how it moves and fades, its size and opacity. Computed from the model's own `slice`."""
+    one = model.select(torch.tensor([int(index)]))
+    with torch.no_grad():
+        g = one.slice(float(t))
+        rows = [("index", f"{int(index):,} of {len(model):,}"),
+                ("position", _vec(g.means[0])),
+                ("velocity", _vec(g.velocities[0])),
+                ("speed", f"{float(g.velocities[0].norm()):.4g}"),
+                ("std-devs", _vec(torch.linalg.eigvalsh(g.covariances[0].double()).clamp_min(0).sqrt().flip(0))),
+                ("opacity at t", f"{float(g.opacities[0]):.3f}" + ("" if bool(g.visible[0]) else "  (not drawn)"))]
+        if isinstance(one, Gaussians4D):
+            _, _, var_t = condition_on_time(one.covariance_4d())
+            sd_t = math.sqrt(float(var_t[0]))
+            rows += [("peak opacity", f"{float(one.opacities[0]):.3f} at t = {float(one.t_means[0]):.4g}"),
+                     ("time std-dev", f"{sd_t:.4g}"),
+                     ("drawn for", f"{float(visible_span(var_t)[0]):.4g} of {model.duration:.4g}")]
+        else:
+            rows.append(("keyframes", f"{one.num_frames}"))
+    return rows
+
+
+def peak_time(model, index: int) -> float:
+    """When Gaussian `index` shows most: a native Gaussian's temporal mean (clamped to the time range), a keyframed
+    one's most opaque key."""
+    t0, t1 = model.time_range
+    if isinstance(model, Gaussians4D):
+        return min(max(float(model.t_means[int(index)]), t0), t1)
+    return float(model.times[int(model.opacities[:, int(index)].argmax())])
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{float(x):.4g}" for x in v) + ")"

@@ -22,8 +22,8 @@
 // that the front-to-back early stop (splat_screen.glsl writes depth 0 over saturated pixels) rejects them there.
 //
 // u_mode: 3 ellipse outlines (2 sigma), 4 centres (small discs), in SPLAT_OVERLAY only; every other mode is drawn
-//         the same way: colour, alpha, and depth, speed and lifespan, whose value the pre-pass wrote as the colour
-//         (accumulating the expected value sum v_i a_i T_i).
+//         the same way: colour, alpha, and depth, speed, lifespan and fade, whose value the pre-pass wrote as the
+//         colour (accumulating the expected value sum v_i a_i T_i).
 
 #define MODE_OUTLINES 3
 #define MODE_CENTRES 4
@@ -34,7 +34,7 @@
 
 in vec4 i_geom;   // centre x, y (pixels, y down), radius (std-devs, 0 = culled), depth
 in vec4 i_axes;   // axis 1 xy, axis 2 xy (pixels per std-dev)
-in vec4 i_color;  // rgb (the value of the depth, speed and lifespan modes), opacity
+in vec4 i_color;  // rgb (the value of the depth, speed, lifespan and fade modes), opacity
 in vec4 i_rect;   // tile rectangle x0, y0, x1, y1 (pixels, y down)
 
 uniform vec2 u_size;

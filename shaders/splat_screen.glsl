@@ -10,7 +10,8 @@
 //     keeps a transparent background (premultiplied colour + alpha, ready for EXR/PNG export), a = 1 gives
 //     C + T * bg. u_mode: 0 colour, 1 depth (expected depth / alpha through the Turbo colour map over
 //     u_value_range, near = red), 2 alpha (grey, opaque), 3 outlines and 4 centres (as colour), 5 speed and
-//     6 lifespan (expected speed or visible time span / alpha through the same map over u_value_range, high = red).
+//     6 lifespan, 7 fade (expected speed, visible time span or temporal opacity factor / alpha through the same map
+//     over u_value_range, high = red).
 // The other two passes map pixels 1:1 (texelFetch at gl_FragCoord).
 // SCREEN_MASK (1): front-to-back early stop between batches of splats: depth 0 (the triangle's depth) wherever
 //     the accumulated alpha has reached 1 - TRANSMITTANCE_THRESHOLD (the reference rasterizer stops a pixel
@@ -39,7 +40,7 @@ uniform sampler2D u_accum;
 
 uniform vec4 u_background;   // premultiplied background colour
 uniform int u_mode;
-uniform vec2 u_value_range;  // depth (near, far), speed (slow, fast), lifespan (brief, long): the map's ends
+uniform vec2 u_value_range;  // depth (near, far), speed (slow, fast), lifespan (brief, long), fade: the map's ends
 uniform vec4 u_viewport;     // x, y (lower-left corner), width, height of the viewport in the target
 
 out vec4 f_color;
@@ -70,7 +71,7 @@ void main() {
     if (u_mode == 1 || u_mode >= 5) {
         float value = alpha > 1e-6 ? acc.r / alpha : u_value_range.x;
         float x = (value - u_value_range.x) / max(u_value_range.y - u_value_range.x, 1e-6);
-        rgb = turbo(u_mode == 1 ? 1.0 - x : x) * alpha;  // near (depth), fast (speed), long-lived = red
+        rgb = turbo(u_mode == 1 ? 1.0 - x : x) * alpha;  // near (depth), fast, long-lived, at its peak = red
     }
     f_color = vec4(rgb, alpha) + (1.0 - alpha) * u_background;
 }

@@ -216,3 +216,28 @@ def test_lifespan_mode_accumulates_each_gaussians_visible_span_capped_at_the_tim
     acc, _, _ = value_images(keyed, camera, 0.5, "lifespan", torch.full((len(keyed),), t1 - t0))
     covered = acc[..., 3] > 0.05
     assert covered.any() and np.allclose(acc[..., 0][covered] / acc[..., 3][covered], t1 - t0, rtol=1e-3)
+
+
+def test_fade_mode_accumulates_each_gaussians_temporal_opacity_factor():
+    """The fade mode composites each Gaussian's temporal marginal at t (the factor on its opacity: 1 at its temporal
+    peak, down to the 0.05 cull), like the rasterizer composites that value as colour; the map runs from 0 to 1.
+    A keyframed model does not fade: all read 1."""
+    from splat4d.covariance import condition_on_time, temporal_marginal
+
+    model = synthetic_model(4000, seed=7, sh_degree=1, radius=0.4, scale=0.02, speed=0.3, lifetime=0.15)
+    camera = orbit(20, 40, 1.6, fov_deg=45, width=96, height=96)
+    with torch.no_grad():
+        _, _, var_t = condition_on_time(model.covariance_4d())
+    for t in (0.35, 0.6):
+        with torch.no_grad():
+            factor = temporal_marginal(t, model.t_means, var_t).float()
+        acc, stats, ref = value_images(model, camera, t, "fade", factor)
+        covered = acc[..., 3] > 0.05
+        mean_factor = acc[..., 0][covered] / acc[..., 3][covered]
+        assert mean_factor.min() < 0.5 < mean_factor.max()  # fading and peaking Gaussians both in view
+        assert psnr(acc[..., 0], ref) >= MIN_PSNR
+        assert stats.value_range == (0.0, 1.0)
+    keyed = keyframed(model, (0.0, 0.5, 1.0))
+    acc, _, _ = value_images(keyed, camera, 0.5, "fade", torch.ones(len(keyed)))
+    covered = acc[..., 3] > 0.05
+    assert covered.any() and np.allclose(acc[..., 0][covered] / acc[..., 3][covered], 1.0, rtol=1e-3)

@@ -709,6 +709,7 @@ class ViewerApp:
                 "depth": f"red = near ({lo:.3g}), blue = far ({hi:.3g})",
                 "speed": f"blue = still ({lo:.3g}), red = fast ({hi:.3g} units per unit of model time)",
                 "lifespan": f"time each Gaussian is drawn: blue = brief, red = the whole time range ({hi:.3g})",
+                "fade": "temporal opacity factor: red = at its peak (1), blue = fading in or out",
             }[s.mode])
         _, s.splat_scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f")
         max_deg = self.renderer.splats.sh_degree if self.renderer.splats is not None else 0

@@ -41,13 +41,14 @@ from .pick import PixelStack, composite_pixel
 from .sorting import SortKey, SortResult, depth_order
 
 #: Display modes, in the order of the app's combo box.
-RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers", "speed", "lifespan")
+RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers", "speed", "lifespan", "fade")
 _MODE_ALIASES = {"colour": "color", "rgb": "color", "centres": "centers", "points": "centers",
                  "ellipsoids": "outlines", "ellipses": "outlines", "velocity": "speed", "motion": "speed",
-                 "lifetime": "lifespan", "duration": "lifespan"}
-#: Modes that show a per-Gaussian value (camera depth, speed, visible time span) through a colour map over
-#: `RenderSettings.value_range`.
-VALUE_MODES: tuple[str, ...] = ("depth", "speed", "lifespan")
+                 "lifetime": "lifespan", "duration": "lifespan", "temporal-opacity": "fade", "temporal": "fade",
+                 "marginal": "fade", "fading": "fade"}
+#: Modes that show a per-Gaussian value (camera depth, speed, visible time span, temporal opacity factor) through a
+#: colour map over `RenderSettings.value_range`.
+VALUE_MODES: tuple[str, ...] = ("depth", "speed", "lifespan", "fade")
 #: How splats are blended; both give the reference composite (see `SplatRenderer`).
 COMPOSITE_ORDERS: tuple[str, ...] = ("front-to-back", "back-to-front")
 #: Bytes of one pre-processed Gaussian (4 vec4: geometry, axes, colour, tile rectangle).
@@ -75,7 +76,7 @@ _QUAD_EXTRA_COST = 260.0
 #: At most this many alternating point/quad runs per batch; beyond, the batch is drawn as quads in one call.
 _MAX_RUNS = 16
 #: Modes drawn with points when the primitive allows; outlines and centres need the quad's own footprint.
-_POINT_MODES = ("color", "depth", "alpha", "speed", "lifespan")
+_POINT_MODES = ("color", "depth", "alpha", "speed", "lifespan", "fade")
 
 
 def parse_mode(name: str) -> str:
@@ -97,9 +98,10 @@ class RenderSettings:
         background: RGB in [0, 1] behind the splats.
         transparent: keep the background transparent (premultiplied colour + alpha) instead of compositing.
         value_range: (low, high) of the colour map of the depth mode (near, far camera depth), the speed mode
-            (slow, fast, in world units per unit of model time) and the lifespan mode (brief, long, in model time);
-            None = the 2nd-98th percentile of the drawn depths of each frame (`render_frames` fixes one range for
-            a whole video), 0 to the model's `splats.typical_speed`, and 0 to the model's time span.
+            (slow, fast, in world units per unit of model time), the lifespan mode (brief, long, in model time)
+            and the fade mode (temporal opacity factor); None = the 2nd-98th percentile of the drawn depths of each
+            frame (`render_frames` fixes one range for a whole video), 0 to the model's `splats.typical_speed`, 0
+            to the model's time span, and 0 to 1.
         composite: "front-to-back" (under-blending in batches, pixels stop once their transmittance reaches
             TRANSMITTANCE_THRESHOLD, like the reference rasterizer) or "back-to-front" (over-blending, no early
             stop). Same image either way (to float rounding and the 1e-4 early-stop residue).
@@ -242,6 +244,8 @@ class SplatRenderer:
             return 0.0, self.typical_speed()
         if mode == "lifespan":
             return 0.0, splats.duration
+        if mode == "fade":
+            return 0.0, 1.0
         return order.depth_range
 
     def typical_speed(self) -> float:

@@ -87,12 +87,13 @@ def add_args(p: argparse.ArgumentParser) -> None:
     s.add_argument("--background", default=None,
                    help="white, black, grey, transparent, #rrggbb or r,g,b (default: the checkpoint's)")
     s.add_argument("--mode", default="color",
-                   help="color, depth, alpha, outlines, centers, speed or lifespan (default color)")
+                   help="color, depth, alpha, outlines, centers, speed, lifespan or fade (default color)")
     s.add_argument("--map-range", type=argtype(lambda s: parse_vector(s, 2, "--map-range")), default=None,
                    metavar="LO,HI", help="ends of the colour map of --mode depth (near,far camera depth), speed "
-                                         "(slow,fast in world units per unit of model time) or lifespan "
-                                         "(brief,long in model time); default: the depths seen over the video, 0 "
-                                         "to the model's 98th-percentile speed, 0 to the model's time span")
+                                         "(slow,fast in world units per unit of model time), lifespan "
+                                         "(brief,long in model time) or fade; default: the depths seen over the "
+                                         "video, 0 to the model's 98th-percentile speed, 0 to the model's time "
+                                         "span, 0 to 1")
     s.add_argument("--sh-degree", type=int, default=None, help="render at a lower SH degree")
     s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
     s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",

@@ -40,7 +40,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--background", default=None,
                    help="white, black, grey, #rrggbb or r,g,b (default: the checkpoint's)")
     p.add_argument("--mode", default="color",
-                   help="color, depth, alpha, outlines, centers, speed or lifespan (default color)")
+                   help="color, depth, alpha, outlines, centers, speed, lifespan or fade (default color)")
     p.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
     p.add_argument("--sh-degree", type=int, default=None, help="display at a lower SH degree")
     p.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",

@@ -218,3 +218,51 @@ def test_bad_nerfstudio_paths_raise_one_line_errors(tmp_path, edit, message):
     with pytest.raises(CameraError, match=message) as exc:
         CameraPath.load(f)
     assert "nerfstudio camera path" in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_a_keyframed_path_saves_as_nerfstudio_frames_that_load_back_onto_it(tmp_path):
+    """`path_as_nerfstudio` (the app's Save as "nerfstudio frames"): one frame every 1/fps over the path, with its
+    scene times; read back, each frame is the path's camera and scene time at that moment."""
+    from splat4d.viewer.trajectory import path_as_nerfstudio
+
+    path = sample_path()
+    data = path_as_nerfstudio(path, 64, 48, fps=10.0, time_range=(0.0, 2.0))
+    assert data["render_width"] == 64 and data["render_height"] == 48
+    assert len(data["camera_path"]) == path_frame_count(path, 10.0) == 41  # 4 s at 10 FPS and the last key
+    f = tmp_path / "ns.json"
+    f.write_text(json.dumps(data))
+    back = CameraPath.load(f, time_range=(0.0, 2.0))
+    for i in (0, 7, 15, 40):
+        want, got = path.camera(i / 10.0, 64, 48), back.camera(i / 10.0, 64, 48)
+        np.testing.assert_allclose(got.c2w, want.c2w, atol=1e-9)
+        assert got.fy == pytest.approx(want.fy)
+        assert back.scene_time(i / 10.0) == pytest.approx(path.scene_time(i / 10.0))
+    keyed_size = CameraPath(path.keys, path.up, image_size=(32, 24), fps=5.0)
+    data = path_as_nerfstudio(keyed_size, 64, 48)  # the path's own size and fps win
+    assert (data["render_width"], data["render_height"], data["fps"]) == (32, 24, 5.0)
+    untimed = CameraPath([CameraKey(k.time, k.position, k.quaternion, k.fov) for k in path.keys], path.up)
+    assert "render_time" not in path_as_nerfstudio(untimed, 64, 48)["camera_path"][0]
+
+
+def test_the_app_saves_its_path_in_either_format(tmp_path):
+    from splat4d.checkpoint import save_checkpoint
+    from splat4d.viewer.app import AppOptions, ViewerApp
+    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from splat4d.viewer.synthetic import synthetic_model
+
+    ckpt = save_checkpoint(tmp_path / "m.safetensors", synthetic_model(100, seed=1))
+    app = ViewerApp(ckpt, AppOptions(size=(80, 60)))
+    app.renderer = SplatRenderer(headless_context())
+    app.load(ckpt)
+    pe = app._path
+    pe.path, pe.file = sample_path(), str(tmp_path / "p.json")
+    assert app._attempt(app._save_path)
+    assert json.loads((tmp_path / "p.json").read_text())["format"] == "splat4d-camera-path"
+    pe.nerfstudio = True
+    assert not app._attempt(app._save_path) and "already exists" in app.status  # no overwrite unless ticked
+    pe.overwrite = True
+    assert app._attempt(app._save_path)
+    data = json.loads((tmp_path / "p.json").read_text())
+    assert (data["render_width"], data["render_height"]) == (80, 60) and data["fps"] == 30.0
+    assert CameraPath.load(tmp_path / "p.json", app.model.time_range).scene_time(2.0) == pytest.approx(0.6)
+    app.renderer.release()

@@ -44,7 +44,7 @@ from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, PICK_COL
 from .pick import PixelHit, PixelStack, describe, peak_time
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult, view_key
-from .trajectory import frame_model, framing_of, model_extent
+from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudio
 
 
 @dataclass
@@ -106,6 +106,12 @@ class _PathEditor:
     time: float = 0.0
     overwrite: bool = False
     show: bool = True
+    #: what Save writes: a splat4d path (keyframes) or a nerfstudio one (frames at 30 FPS, for ns-render)
+    nerfstudio: bool = False
+
+
+#: Save's formats in the Path tab, in `_PathEditor.nerfstudio` order
+PATH_FORMATS = ("splat4d keys", "nerfstudio frames")
 
 
 @dataclass
@@ -756,7 +762,7 @@ class ViewerApp:
                 pe.time = pe.path.start
         _, pe.file = imgui.input_text("path file", pe.file)
         if imgui.button("Save") and pe.path is not None:
-            self._attempt(lambda: pe.path.save(pe.file, force=pe.overwrite), f"saved camera path {pe.file}")
+            self._attempt(self._save_path, f"saved camera path {pe.file} ({PATH_FORMATS[pe.nerfstudio]})")
         imgui.same_line()
         if imgui.button("Load"):
             self._attempt(lambda: setattr(pe, "path", CameraPath.load(pe.file, self.model.time_range)),
@@ -764,6 +770,26 @@ class ViewerApp:
         imgui.same_line()
         _, pe.overwrite = imgui.checkbox("overwrite", pe.overwrite)
         _, pe.show = imgui.checkbox("show path", pe.show)
+        _, fmt = imgui.combo("save as", int(pe.nerfstudio), list(PATH_FORMATS))
+        pe.nerfstudio = bool(fmt)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("nerfstudio: the path sampled at 30 FPS with each frame's scene time, for ns-render "
+                              "camera-path (e.g. a dynamic NeRF of the same data); splat4d reads both")
+
+    def _save_path(self) -> None:
+        """Write the edited path to the path file: its keys (splat4d), or its frames at the window's size (nerfstudio,
+        `path_as_nerfstudio`)."""
+        pe = self._path
+        if not pe.nerfstudio:
+            pe.path.save(pe.file, force=pe.overwrite)
+            return
+        width, height = self.options.size
+        if self._window is not None:
+            import glfw
+
+            width, height = glfw.get_framebuffer_size(self._window)
+        atomic_write_json(pe.file, path_as_nerfstudio(pe.path, width, height, time_range=self.model.time_range),
+                          force=pe.overwrite)
 
     def _draw_crop_ui(self) -> None:
         from imgui_bundle import imgui

@@ -29,7 +29,7 @@ from splat4d.cameras import Camera, look_at, orbit_position
 from splat4d.errors import CameraError
 from splat4d.model import model_bounds
 
-from .camera_path import CameraPath
+from .camera_path import CameraPath, nerfstudio_camera_path
 
 TRAJECTORIES: tuple[str, ...] = ("orbit", "spiral", "path")
 TIME_MODES: tuple[str, ...] = ("loop", "timelapse", "hold", "path")
@@ -100,6 +100,19 @@ def path_frame_count(path: CameraPath, fps: float) -> int:
     """Frames that cover a path at `fps`: its last key included when open, a whole period when looping."""
     n = int(round(path.duration * fps))
     return max(1, n if path.loop else n + 1)
+
+
+def path_as_nerfstudio(path: CameraPath, width: int, height: int, fps: float = 30.0,
+                       time_range: tuple[float, float] | None = None) -> dict:
+    """A keyframed path sampled into nerfstudio's camera-path JSON (`nerfstudio_camera_path`): one frame every
+    1/fps seconds over the path (`path_frame_count`), at the path's own image size and fps when it records them,
+    with each frame's scene time as ``render_time`` when every key has one (normalised over `time_range`)."""
+    fps = path.fps or fps
+    width, height = path.image_size or (width, height)
+    frames = path_frame_count(path, fps)
+    cameras = path_cameras(path, frames, fps, width, height)
+    times = scene_times("path", frames, fps, time_range or (0.0, 1.0), path=path) if path.has_scene_time else None
+    return nerfstudio_camera_path(cameras, fps, times, time_range)
 
 
 def scene_times(mode: str, frames: int, fps: float, time_range: tuple[float, float], loop_seconds: float = 2.0,

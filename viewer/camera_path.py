@@ -24,8 +24,9 @@ Interpolation: position by a cubic Hermite spline with Catmull-Rom tangents scal
 through every key), orientation by slerp (`splat4d.quaternion.slerp`) between consecutive keys, fov and scene time
 linearly. A looping path adds a closing segment from the last key back to the first, lasting the mean key spacing.
 
-Optional top-level ``"image_size": [width, height]`` and ``"fps"`` say how the path is meant to be rendered
-(`splat4d render` uses them when ``--size`` / ``--fps`` are not given).
+Optional top-level ``"image_size": [width, height]``, ``"fps"`` and ``"projection"`` (``"perspective"``, the
+default, or ``"equirect"`` for 360° panoramas) say how the path is meant to be rendered (`splat4d render` uses
+them when ``--size`` / ``--fps`` / ``--projection`` are not given).
 
 `CameraPath.load` also reads **nerfstudio camera paths** (``ns-render --camera-path-filename``; written by the
 nerfstudio viewer's "Export path" and by the nerfstudio Blender add-on): `from_nerfstudio`.
@@ -52,6 +53,10 @@ from splat4d.fileio import atomic_write_json
 
 FORMAT_NAME = "splat4d-camera-path"
 FORMAT_VERSION = 1
+#: How a path's frames are formed: a pinhole camera, or a 360° equirectangular panorama from the camera's position.
+PROJECTIONS = ("perspective", "equirect")
+#: nerfstudio's camera_type -> ours
+_NERFSTUDIO_PROJECTIONS = {"perspective": "perspective", "equirectangular": "equirect"}
 DEFAULT_FOV = 40.0
 
 
@@ -171,11 +176,15 @@ class CameraPath:
     #: how the path is meant to be rendered, when its file says: (width, height) and frames per second
     image_size: tuple[int, int] | None = None
     fps: float | None = None
+    #: "perspective", or "equirect" for a path of 360° panoramas (`splat4d.viewer.panorama`)
+    projection: str = "perspective"
     _times: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not self.keys:
             raise CameraError("a camera path needs at least one keyframe")
+        if self.projection not in PROJECTIONS:
+            raise CameraError(f"unknown projection {self.projection!r}; expected one of {', '.join(PROJECTIONS)}")
         times = np.array([k.time for k in self.keys], np.float64)
         if np.any(np.diff(times) <= 0):
             raise CameraError("camera path keyframe times must be strictly increasing")
@@ -269,7 +278,8 @@ class CameraPath:
     def with_key(self, key: CameraKey) -> "CameraPath":
         """A copy with `key` added (keys are kept sorted by time; a key at an existing time replaces it)."""
         keys = [k for k in self.keys if k.time != key.time] + [key]
-        return CameraPath(sorted(keys, key=lambda k: k.time), self.up, self.loop, self.image_size, self.fps)
+        return CameraPath(sorted(keys, key=lambda k: k.time), self.up, self.loop, self.image_size, self.fps,
+                          self.projection)
 
     # --- files ----------------------------------------------------------------------------------------------
     def to_json(self) -> dict:
@@ -279,6 +289,8 @@ class CameraPath:
             out["image_size"] = list(self.image_size)
         if self.fps is not None:
             out["fps"] = self.fps
+        if self.projection != "perspective":
+            out["projection"] = self.projection
         return {**out, "keyframes": [k.to_json() for k in self.keys]}
 
     @classmethod
@@ -314,7 +326,7 @@ class CameraPath:
             fps = None if data.get("fps") is None else _number(data["fps"], "fps")
             if fps is not None and not fps > 0:
                 raise CameraError(f"fps must be positive, got {fps}")
-            return cls(parsed, up, bool(data.get("loop", False)), size, fps)
+            return cls(parsed, up, bool(data.get("loop", False)), size, fps, data.get("projection", "perspective"))
         except CameraError as exc:
             raise CameraError(f"{source}: {exc}") from None
 
@@ -328,13 +340,14 @@ class CameraPath:
         Every frame becomes a key; frame i sits at i / fps seconds (fps = frames / seconds, as ns-render plays it),
         so rendering at the file's fps gives exactly its frames. ``render_time`` r becomes the scene time
         t0 + r (t1 - t0) of `time_range` (r itself without one). Rotations are re-orthonormalised (a Blender camera
-        with a scale has a scaled matrix). Only the perspective camera type exists here."""
+        with a scale has a scaled matrix). The perspective and equirectangular camera types are read (the
+        latter as a path of 360° panoramas, `projection` "equirect"); fisheye is not."""
         def fail(message: str):
             raise CameraError(f"{source}: nerfstudio camera path: {message}")
 
         kind = data.get("camera_type", "perspective")
-        if kind != "perspective":
-            fail(f"camera_type {kind!r} is not supported (only perspective)")
+        if kind not in _NERFSTUDIO_PROJECTIONS:
+            fail(f"camera_type {kind!r} is not supported (only perspective and equirectangular)")
         try:
             size = (int(_number(data["render_width"], "render_width")),
                     int(_number(data["render_height"], "render_height")))
@@ -375,7 +388,7 @@ class CameraPath:
             except CameraError as exc:
                 fail(f"frame {i}: {exc}")
             keys.append(CameraKey(i / fps, c2w[:3, 3].copy(), rotation_to_quaternion(u @ vt), fov, scene_time))
-        return cls(keys, "z", False, size, fps)
+        return cls(keys, "z", False, size, fps, _NERFSTUDIO_PROJECTIONS[kind])
 
     def save(self, path: str | os.PathLike, force: bool = False) -> Path:
         return atomic_write_json(path, self.to_json(), force)
@@ -395,15 +408,18 @@ class CameraPath:
 
 
 def nerfstudio_camera_path(cameras: Sequence[Camera], fps: float, times: Sequence[float] | None = None,
-                           time_range: tuple[float, float] | None = None) -> dict:
+                           time_range: tuple[float, float] | None = None, projection: str = "perspective",
+                           size: tuple[int, int] | None = None) -> dict:
     """The nerfstudio camera-path JSON of rendered frames (what ``ns-render camera-path`` plays, and what
     `CameraPath.from_nerfstudio` reads back frame for frame): one entry per camera with its OpenGL
     ``camera_to_world`` (row-major), vertical ``fov`` in degrees and ``aspect``, and with `times` a ``render_time``
     normalised to [0, 1] over `time_range`. nerfstudio's cameras have their principal point at the image centre,
-    so an off-centre one is not kept."""
+    so an off-centre one is not kept. `projection` "equirect": the frames are 360° panoramas of `size` seen from
+    the cameras' poses (camera_type "equirectangular")."""
     if not cameras:
         raise CameraError("a camera path needs at least one camera")
-    width, height = cameras[0].width, cameras[0].height
+    width, height = size or (cameras[0].width, cameras[0].height)
+    kind = {v: k for k, v in _NERFSTUDIO_PROJECTIONS.items()}[projection]
     t0, t1 = time_range or (0.0, 1.0)
     span = (t1 - t0) or 1.0
     frames = []
@@ -413,7 +429,7 @@ def nerfstudio_camera_path(cameras: Sequence[Camera], fps: float, times: Sequenc
         if times is not None:
             frame["render_time"] = (float(times[i]) - t0) / span
         frames.append(frame)
-    return {"camera_type": "perspective", "render_width": width, "render_height": height,
+    return {"camera_type": kind, "render_width": width, "render_height": height,
             "seconds": len(cameras) / fps, "fps": fps, "camera_path": frames}
 
 

@@ -108,11 +108,13 @@ def path_as_nerfstudio(path: CameraPath, width: int, height: int, fps: float = 3
     1/fps seconds over the path (`path_frame_count`), at the path's own image size and fps when it records them,
     with each frame's scene time as ``render_time`` when every key has one (normalised over `time_range`)."""
     fps = path.fps or fps
+    if path.projection == "equirect":  # a panorama path: its frames are 360° images, not the window's view
+        width, height = (2 * height, height)
     width, height = path.image_size or (width, height)
     frames = path_frame_count(path, fps)
     cameras = path_cameras(path, frames, fps, width, height)
     times = scene_times("path", frames, fps, time_range or (0.0, 1.0), path=path) if path.has_scene_time else None
-    return nerfstudio_camera_path(cameras, fps, times, time_range)
+    return nerfstudio_camera_path(cameras, fps, times, time_range, path.projection)
 
 
 def scene_times(mode: str, frames: int, fps: float, time_range: tuple[float, float], loop_seconds: float = 2.0,

@@ -23,10 +23,12 @@ examples:
   splat4d render model.safetensors --out tour.mp4 --path tour.json
   splat4d render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
   splat4d render model.safetensors --out orbit.mp4 --save-cameras orbit_cameras.json   (the same cameras elsewhere)
+  splat4d render scene.safetensors --out pano.mp4 --projection equirect --path inside.json   (360° video)
 """
 
 
 DEFAULT_SIZE = (1280, 720)
+DEFAULT_PANORAMA_SIZE = (2048, 1024)
 DEFAULT_FPS = 30.0
 
 
@@ -45,8 +47,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "camera-path, the nerfstudio viewer; --path reads it back frame for frame)")
     g = p.add_argument_group("frames")
     g.add_argument("--size", type=argtype(parse_size), default=None, metavar="WxH",
-                   help="image size in pixels (default: the camera path file's, else 1280x720; even for .mp4 and "
-                        ".webm)")
+                   help="image size in pixels (default: the camera path file's, else 1280x720, or 2048x1024 for "
+                        "--projection equirect; even for .mp4 and .webm)")
     g.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the camera path file's, else 30)")
     g.add_argument("--frames", type=int, default=None,
@@ -74,6 +76,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     c.add_argument("--target", type=argtype(lambda s: parse_vector(s, 3, "target")), default=None,
                    metavar="X,Y,Z", help="point to orbit around (default: centre of the model)")
     c.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
+    c.add_argument("--projection", choices=("perspective", "equirect"), default=None,
+                   help="equirect: 360° panoramas (2:1) seen from each camera's position, its view direction at "
+                        "the centre; --fov does not apply (default perspective, or what the path file says)")
     c.add_argument("--up", default="z", choices=("x", "y", "z", "-x", "-y", "-z"), help="world up axis (default z)")
     t = p.add_argument_group("scene time")
     t.add_argument("--time-mode", choices=("loop", "timelapse", "hold", "path"), default=None,
@@ -111,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.viewer.headless import render_to_file
     from splat4d.viewer.options import OptionError, parse_background
     from splat4d.viewer.output import output_kind
+    from splat4d.viewer.panorama import Equirect
     from splat4d.viewer.renderer import RenderSettings
     from splat4d.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
                                            scene_times)
@@ -151,7 +157,11 @@ def run(args: argparse.Namespace) -> int:
         else:
             raise OptionError("--trajectory path needs --path FILE or --cameras DATASET")
     # a path file may say how it is meant to be rendered (a nerfstudio path always does)
-    width, height = args.size or (path is not None and path.image_size) or DEFAULT_SIZE
+    projection = args.projection or (path.projection if path is not None else "perspective")
+    default_size = DEFAULT_PANORAMA_SIZE if projection == "equirect" else DEFAULT_SIZE
+    width, height = args.size or (path is not None and path.projection == projection and path.image_size) \
+        or default_size
+    equirect = Equirect(width, height) if projection == "equirect" else None
     fps = args.fps or (path is not None and path.fps) or DEFAULT_FPS
     if path is not None:
         frames = args.frames or path_frame_count(path, fps)
@@ -175,10 +185,10 @@ def run(args: argparse.Namespace) -> int:
         raise CameraError("--time-mode path needs --path or --cameras")
 
     summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
-                             progress=False if args.quiet else "render", crf=args.crf)
+                             progress=False if args.quiet else "render", crf=args.crf, equirect=equirect)
     if args.save_cameras:
-        atomic_write_json(args.save_cameras, nerfstudio_camera_path(cameras, fps, times, model.time_range),
-                          args.force)
+        atomic_write_json(args.save_cameras, nerfstudio_camera_path(cameras, fps, times, model.time_range,
+                                                                    projection, (width, height)), args.force)
     import statistics
 
     median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)

@@ -79,7 +79,7 @@ def test_pick_follows_the_order_at_time_t(ctx):
 def test_composite_stops_where_the_reference_does():
     """Front to back, the Gaussian that would take T below 1e-4 is left out (and all behind it)."""
     rec = np.zeros((4, 16), np.float32)
-    rec[:, 0:2] = 10.0  # centre at pixel (9.5, 9.5)... the pixel (10, 10) centre is 0.5 px away
+    rec[:, 0:2] = 10.0  # centres at (10, 10): pixel (10, 10)'s centre (10.5, 10.5) is 0.7 px away
     rec[:, 2] = 3.0
     rec[:, 3] = [1.0, 2.0, 3.0, 4.0]
     rec[:, 4:8] = [100.0, 0.0, 0.0, 100.0]  # huge std-devs: alpha = opacity at the centre

@@ -41,7 +41,7 @@ from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
 from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR, Frustums,
                       LineRenderer, box_segments, ellipsoid_segments, path_segments)
-from .pick import PixelHit, PixelStack, describe, peak_time
+from .pick import PixelHit, PixelStack, inspect_gaussian, peak_time
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .sorting import AsyncSorter, SortKey, SortResult, view_key
 from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudio
@@ -151,10 +151,11 @@ class _Inspector:
     cache: tuple | None = None
     #: open the panel's Inspect section on the next frame (a new pick)
     reveal: bool = False
+    #: the stack's Gaussians, the largest share first
+    ranked: list[PixelHit] = field(init=False)
 
-    @property
-    def ranked(self) -> list[PixelHit]:
-        return sorted(self.stack.hits, key=lambda h: -h.weight) if self.stack is not None else []
+    def __post_init__(self) -> None:
+        self.ranked = sorted(self.stack.hits, key=lambda h: -h.weight) if self.stack is not None else []
 
     @property
     def hit(self) -> PixelHit | None:
@@ -311,7 +312,7 @@ class ViewerApp:
             "color": list(stack.color), "gaussians": len(stack.hits),
             "hits": [{"index": h.index, "weight": h.weight, "alpha": h.alpha, "depth": h.depth} for h in stack.hits],
             "top": None if top is None else {"index": top.index, "weight": top.weight,
-                                             "attributes": dict(describe(self.renderer.model, top.index, t))}}
+                                             "attributes": dict(self._inspected(t)[0])}}  # rank 0 = top
         return stack
 
     def _inspected(self, t: float) -> tuple[list, np.ndarray] | None:
@@ -322,13 +323,9 @@ class ViewerApp:
             return None
         key = (hit.index, t, self.settings.splat_scale)
         if ins.cache is None or ins.cache[0] != key:
-            import torch
-
-            model = self.renderer.model
-            with torch.no_grad():
-                g = model.select(torch.tensor([hit.index])).slice(t)
+            rows, g = inspect_gaussian(self.renderer.model, hit.index, t)
             cov = g.covariances[0].double().numpy() * self.settings.splat_scale ** 2
-            ins.cache = (key, describe(model, hit.index, t), ellipsoid_segments(g.means[0].double().numpy(), cov))
+            ins.cache = (key, rows, ellipsoid_segments(g.means[0].double().numpy(), cov))
         return ins.cache[1], ins.cache[2]
 
     def _save_cropped(self) -> None:

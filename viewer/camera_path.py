@@ -51,12 +51,13 @@ from splat4d.cameras import Camera, as_up, look_at_c2w, nerf_frame_camera, openg
 from splat4d.errors import CameraError
 from splat4d.fileio import atomic_write_json
 
+from .panorama import PROJECTIONS
+
 FORMAT_NAME = "splat4d-camera-path"
 FORMAT_VERSION = 1
-#: How a path's frames are formed: a pinhole camera, or a 360° equirectangular panorama from the camera's position.
-PROJECTIONS = ("perspective", "equirect")
-#: nerfstudio's camera_type -> ours
+#: nerfstudio's camera_type -> ours (`panorama.PROJECTIONS`), and back
 _NERFSTUDIO_PROJECTIONS = {"perspective": "perspective", "equirectangular": "equirect"}
+_NERFSTUDIO_CAMERA_TYPES = {ours: theirs for theirs, ours in _NERFSTUDIO_PROJECTIONS.items()}
 DEFAULT_FOV = 40.0
 
 
@@ -419,7 +420,7 @@ def nerfstudio_camera_path(cameras: Sequence[Camera], fps: float, times: Sequenc
     if not cameras:
         raise CameraError("a camera path needs at least one camera")
     width, height = size or (cameras[0].width, cameras[0].height)
-    kind = {v: k for k, v in _NERFSTUDIO_PROJECTIONS.items()}[projection]
+    kind = _NERFSTUDIO_CAMERA_TYPES[projection]
     t0, t1 = time_range or (0.0, 1.0)
     span = (t1 - t0) or 1.0
     frames = []

@@ -22,6 +22,8 @@ import numpy as np
 from splat4d.cameras import Camera
 from splat4d.errors import CameraError
 
+#: How frames are formed: a pinhole camera, or a 360° equirectangular panorama from the camera's position.
+PROJECTIONS = ("perspective", "equirect")
 #: Extra pixels drawn on each side of a face beyond its 90° field of view.
 FACE_MARGIN = 2
 

@@ -6,7 +6,8 @@ shader at that pixel and composites front to back as the reference rasterizer do
 viewer draws there, Gaussian by Gaussian: the weights alpha_i T_i sum to the pixel's alpha and the weighted colours
 to its colour.
 
-`describe` lists one Gaussian's attributes at a time t from the model itself (its `slice`), for the panel.
+`inspect_gaussian` / `describe` list one Gaussian's attributes at a time t from the model itself (its `slice`),
+for the panel.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import torch
 
 from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
 from splat4d.covariance import condition_on_time, visible_span
-from splat4d.model import Gaussians4D
+from splat4d.model import Gaussians3D, Gaussians4D
 
 
 @dataclass(frozen=True)
@@ -103,6 +104,12 @@ def composite_pixel(records: np.ndarray, indices: np.ndarray, pixel: tuple[int, 
 def describe(model, index: int, t: float) -> list[tuple[str, str]]:
     """(label, value) rows describing Gaussian `index` of `model` at time `t`, for the app's Inspect panel: where
     it is, how it moves and fades, its size and opacity. Computed from the model's own `slice`."""
+    return inspect_gaussian(model, index, t)[0]
+
+
+def inspect_gaussian(model, index: int, t: float) -> tuple[list[tuple[str, str]], Gaussians3D]:
+    """(`describe`'s rows, the one-Gaussian slice they were read from) of Gaussian `index` at time `t`: the slice
+    also gives the app the ellipsoid to draw."""
     one = model.select(torch.tensor([int(index)]))
     with torch.no_grad():
         g = one.slice(float(t))
@@ -120,7 +127,7 @@ def describe(model, index: int, t: float) -> list[tuple[str, str]]:
                      ("drawn for", f"{float(visible_span(var_t)[0]):.4g} of {model.duration:.4g}")]
         else:
             rows.append(("keyframes", f"{one.num_frames}"))
-    return rows
+    return rows, g
 
 
 def peak_time(model, index: int) -> float:

@@ -519,11 +519,7 @@ class SplatRenderer:
         if not idx.shape[0]:
             return
         ctx, tg = self.ctx, self._targets
-        self._ibo.write(idx.tobytes())
-        self._sh_tex.use(0)
-        ctx.disable(ctx.BLEND | ctx.DEPTH_TEST)
-        tg.accum_fbo.use()
-        self._pre_vao.transform(self._splat_buf, ctx.POINTS, vertices=idx.shape[0])
+        self._preprocess(idx, self._splat_buf)
         ctx.enable(ctx.BLEND | ctx.DEPTH_TEST) if depth_test else ctx.enable(ctx.BLEND)
         ctx.blend_func = ((ctx.ONE_MINUS_DST_ALPHA, ctx.ONE) if front_to_back
                           else (ctx.ONE, ctx.ONE_MINUS_SRC_ALPHA))
@@ -545,6 +541,17 @@ class SplatRenderer:
             ctx.disable(ctx.PROGRAM_POINT_SIZE)
             ctx.viewport = (0, 0, w, h)
             tg.accum_fbo.depth_mask = True
+
+    def _preprocess(self, idx: np.ndarray, out) -> None:
+        """Run the pre-pass (uniforms already set) on the Gaussians `idx` (uint32, in this order) into buffer `out`:
+        one `_SPLAT_BYTES` record each, in the same order."""
+        ctx = self.ctx
+        self._ibo.write(idx.tobytes())
+        self._sh_tex.use(0)
+        ctx.disable(ctx.BLEND | ctx.DEPTH_TEST)
+        # a draw needs a complete framebuffer even with rasterizer discard (an EGL context has none of its own)
+        self._targets.accum_fbo.use()
+        self._pre_vao.transform(out, ctx.POINTS, vertices=idx.shape[0])
 
     def _bind_instances(self, kind: str, first: int) -> None:
         """Point the per-instance attributes of quad VAO `kind` at splat `first` of the splat buffer (GL 3.3 has
@@ -600,15 +607,12 @@ class SplatRenderer:
         idx = np.ascontiguousarray(order.order[::-1][near], dtype=np.uint32)
         if not idx.shape[0]:
             return composite_pixel(np.zeros((0, 16), np.float32), idx, (x, y))
-        self._ibo.write(idx.tobytes())
-        self._sh_tex.use(0)
         self._set_pre_uniforms(camera, t, settings, splats)
-        # draws need a complete framebuffer even with rasterizer discard (an EGL context has none of its own);
-        # any target will do, and the last image is left as it is
-        (self._targets or self._ensure_targets((camera.width, camera.height))).accum_fbo.use()
+        if self._targets is None:  # the pre-pass needs a framebuffer; any size will do, the last image is kept
+            self._ensure_targets((camera.width, camera.height))
         out = self.ctx.buffer(reserve=_SPLAT_BYTES * idx.shape[0])
         try:
-            self._pre_vao.transform(out, self.ctx.POINTS, vertices=idx.shape[0])
+            self._preprocess(idx, out)
             records = np.frombuffer(out.read(), np.float32).reshape(-1, 16)
         finally:
             out.release()

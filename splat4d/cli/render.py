@@ -34,6 +34,7 @@ DEFAULT_FPS = 30.0
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splat4d.viewer.options import argtype, parse_size, parse_vector
+    from splat4d.viewer.panorama import PROJECTIONS
 
     from ._crop import add_crop_arg
 
@@ -76,7 +77,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     c.add_argument("--target", type=argtype(lambda s: parse_vector(s, 3, "target")), default=None,
                    metavar="X,Y,Z", help="point to orbit around (default: centre of the model)")
     c.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
-    c.add_argument("--projection", choices=("perspective", "equirect"), default=None,
+    c.add_argument("--projection", choices=PROJECTIONS, default=None,
                    help="equirect: 360° panoramas (2:1) seen from each camera's position, its view direction at "
                         "the centre; --fov does not apply (default perspective, or what the path file says)")
     c.add_argument("--up", default="z", choices=("x", "y", "z", "-x", "-y", "-z"), help="world up axis (default z)")

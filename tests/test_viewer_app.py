@@ -143,12 +143,13 @@ def test_app_plays_a_camera_path_from_the_start_and_sees_the_view_move(display, 
     assert bad.returncode == 1 and "--play-path needs --path" in bad.stderr and "Traceback" not in bad.stderr
 
 
-def test_app_crop_box_shows_what_save_cropped_writes(display, files, tmp_path):
+def test_app_crop_box_shows_what_save_edited_writes(display, files, tmp_path):
     """``view --crop`` starts with the crop box on: the window shows exactly the cropped model (the headless render
-    of `crop(model, box)`), draws the box's 12 edges, and "Save cropped" writes those Gaussians with the box in
+    of `crop(model, box)`), draws the box's 12 edges, and "Save edited" writes those Gaussians with the box in
     the provenance (refusing to overwrite unless asked)."""
     from splat4d.model import CropBox, crop
-    from splat4d.viewer.app import ViewerApp
+    from splat4d.viewer.app import AppOptions, ViewerApp
+    from splat4d.viewer.renderer import SplatRenderer, headless_context
 
     root, model, ckpt = files
     box = [-0.4, -0.4, -0.4, 0.05, 0.4, 0.4]
@@ -167,20 +168,24 @@ def test_app_crop_box_shows_what_save_cropped_writes(display, files, tmp_path):
     missed = run_view(display, str(ckpt), "--exit-after", "1", "--crop", "5", "5", "5", "6", "6", "6")
     assert missed.returncode == 1 and "holds none" in missed.stderr and "Traceback" not in missed.stderr
 
-    app = ViewerApp(ckpt)  # the panel's save action, without a window
-    app.checkpoint = load_checkpoint(ckpt)
-    app.model = app.checkpoint.model
-    app._crop.file = str(tmp_path / "cropped.safetensors")
-    assert not app._attempt(app._save_cropped) and "turn on 'crop to box' first" in app.status
-    app._crop.shown = CropBox.of(box)
-    assert app._attempt(app._save_cropped)
-    saved = load_checkpoint(app._crop.file)
+    app = ViewerApp(ckpt, AppOptions(play=False))  # the panel's save action, on a headless renderer
+    app.renderer = SplatRenderer(headless_context())
+    app.load(str(ckpt))
+    app._editor.file = str(tmp_path / "cropped.safetensors")
+    assert not app._attempt(app._save_edited) and "nothing to save" in app.status
+    app._crop.enabled, app._crop.lo, app._crop.hi = True, box[:3], box[3:]
+    app._apply_crop_edits()
+    assert app._crop.shown == CropBox.of(box) and len(app.renderer.model) == len(cropped)
+    assert app._attempt(app._save_edited)
+    saved = load_checkpoint(app._editor.file)
     torch.testing.assert_close(saved.model.means, cropped.means, rtol=0, atol=0)
     assert saved.provenance["crop"] == {"box": box, "kept": len(cropped), "of": len(model)}
+    assert "deleted" not in saved.provenance
     assert saved.background == app.checkpoint.background
-    assert not app._attempt(app._save_cropped) and "already exists" in app.status
-    app._crop.overwrite = True
-    assert app._attempt(app._save_cropped)
+    assert not app._attempt(app._save_edited) and "already exists" in app.status
+    app._editor.overwrite = True
+    assert app._attempt(app._save_edited)
+    app.renderer.release()
 
 
 def test_frame_stepping_visits_keyframes_else_dataset_frame_times(files):
@@ -239,3 +244,29 @@ def test_app_inspects_a_pixel_given_on_the_command_line(display, files, tmp_path
     assert report["overlay_lines"] == 3 * 48
     bad = run_view(display, str(ckpt), "--size", "160x120", "--inspect", "160,10", "--exit-after", "1")
     assert bad.returncode == 1 and "outside the 160x120 window" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_app_selects_the_gaussians_in_a_rectangle_given_on_the_command_line(display, files, tmp_path):
+    """``view --select X0,Y0,X1,Y1`` (a Shift+drag at start-up): the report counts the Gaussians whose centre shows
+    in that rectangle, as `selection.in_rect` finds them headless for the same view, and a cross is drawn on each;
+    a malformed rectangle is a one-line error."""
+    from splat4d.viewer.selection import in_rect
+    from splat4d.viewer.sorting import depth_order
+    from splat4d.viewer.splats import to_arrays
+
+    root, model, ckpt = files
+    report_path = tmp_path / "report.json"
+    proc = run_view(display, str(ckpt), "--size", "160x120", "--paused", "--time", "0.5", "--select", "90,100,20,10",
+                    "--exit-after", "2", "--report", str(report_path))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    sel = report["selection"]
+    c = sel["camera"]
+    cam = Camera(np.array(c["c2w"]), c["fx"], c["fy"], c["cx"], c["cy"], c["width"], c["height"])
+    assert (c["width"], c["height"], sel["time"]) == (160, 120, 0.5)
+    want = in_rect(depth_order(to_arrays(model), cam, 0.5), (20, 10, 90, 100))
+    assert 100 < len(want) < len(model)
+    assert report["selected"] == sel["caught"] == len(want)
+    assert report["markers"] == len(want) and report["overlay_lines"] == 3 * len(want)
+    bad = run_view(display, str(ckpt), "--select", "1,2,3", "--exit-after", "1")
+    assert bad.returncode == 2 and "rectangle must be 4" in bad.stderr and "Traceback" not in bad.stderr

@@ -148,7 +148,7 @@ def test_app_inspects_a_pixel_and_forgets_it_on_crop(tmp_path):
     assert app._inspect.hit.weight <= top.weight and app._inspect.hit.index != top.index
     app._crop.enabled = True
     app._crop.lo, app._crop.hi = [-0.2] * 3, [0.2] * 3
-    app._apply_crop(0.5)
+    app._apply_edits(0.5)
     assert app._inspect.stack is None and app._inspected(0.5) is None
     assert CropBox((-0.2,) * 3, (0.2,) * 3) == app._crop.shown
     app.renderer.release()

@@ -3,7 +3,8 @@ the moderngl `SplatRenderer`.
 
 Controls: left drag orbits (looks around in fly mode), right or middle drag pans, the wheel zooms, W/A/S/D and
 Q/E fly, Space plays/pauses, R resets the view, F toggles fly mode, P takes a screenshot, Ctrl+click inspects the
-Gaussians under the cursor, Esc quits. Drop a model file on the window (or type its path in the panel) to open it.
+Gaussians under the cursor, Shift+drag selects Gaussians (Shift+Alt+drag unselects), Delete deletes the selection,
+Ctrl+Z undoes a deletion, Esc quits. Drop a model file on the window (or type its path in the panel) to open it.
 
 Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the newest finished back-to-front order
 and a new sort is requested whenever the camera, the time or the splat scale changed, so the UI never waits for a
@@ -12,9 +13,11 @@ sort. Screenshots are the exception: they wait for the order of their exact view
 While the view moves, frames are drawn at a lower resolution when the full one would not fit the frame budget
 (`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always full resolution.
 
-The crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they show most) previews what
-"Save cropped" writes and what ``--crop`` does in convert, render and export; the panel copies the box as that
-option.
+Editing (the Edit tab): the crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they
+show most; the panel copies the box as the ``--crop`` option of convert, render and export) and deleted Gaussians
+(`selection`: a rectangle selects the Gaussians whose centre shows in it at the displayed time). The window shows
+exactly what "Save edited" writes. Unsaved deletions are not dropped silently: opening another file or closing the
+window asks a second time.
 
 Inspect (Ctrl+click, `SplatRenderer.pick`): the Gaussians that make the clicked pixel, ranked by their share of its
 colour, with the chosen one's attributes (`splat4d.viewer.pick.describe`) and its 2-sigma ellipsoid drawn over the
@@ -31,19 +34,21 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from splat4d.errors import GLError, Splat4DError
 from splat4d.fileio import atomic_path, atomic_write_json
-from splat4d.model import CropBox, crop
+from splat4d.model import CropBox, crop_mask
 
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
-from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR, Frustums,
-                      LineRenderer, box_segments, ellipsoid_segments, path_segments)
+from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR, SELECTION_COLOR,
+                      Frustums, LineRenderer, box_segments, ellipsoid_segments, path_segments)
 from .pick import PixelHit, PixelStack, inspect_gaussian, peak_time
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
-from .sorting import AsyncSorter, SortKey, SortResult, view_key
+from .selection import Edits, centres_at, in_rect, marker_segments, normalise_rect
+from .sorting import AsyncSorter, SortKey, SortResult, depth_order, view_key
 from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudio
 
 
@@ -83,6 +88,8 @@ class AppOptions:
     crop: tuple[float, ...] | None = None
     #: start with this window pixel (x, y from the top left) inspected, as a Ctrl+click there
     inspect: tuple[int, int] | None = None
+    #: start with the Gaussians in this window rectangle (x0, y0, x1, y1 from the top left) selected, as a Shift+drag
+    select: tuple[float, float, float, float] | None = None
 
 
 @dataclass
@@ -122,8 +129,6 @@ class _CropEditor:
     lo: list = field(default_factory=lambda: [-1.0, -1.0, -1.0])
     hi: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
     show: bool = True
-    file: str = "cropped.safetensors"
-    overwrite: bool = False
     shown: CropBox | None = None
     #: how long the last crop took to apply: above LIVE_CROP_MS, a drag applies when it is released
     apply_ms: float = 0.0
@@ -141,6 +146,31 @@ class _CropEditor:
 
 
 @dataclass
+class _Editor:
+    """The Edit tab besides the crop box: deleted and selected Gaussians, the selection rectangle being dragged, and
+    where "Save edited" writes."""
+
+    edits: Edits = field(default_factory=lambda: Edits.of(0))
+    #: indices of the loaded model's Gaussians that the renderer shows, ascending (crop box and deletions applied)
+    shown_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: (crop box, its ``[N]`` bool mask over the loaded model): a deletion does not recompute the crop
+    crop_cache: tuple | None = None
+    #: the loaded model's `SplatArrays` once converted (each edit uploads a `SplatArrays.select` of them)
+    full_arrays: object = None
+    #: the rectangle being dragged (x0, y0, x1, y1, window pixels), and whether it unselects (Shift+Alt)
+    drag: list | None = None
+    drag_removes: bool = False
+    file: str = "edited.safetensors"
+    #: what `file` was set to when the model was opened (a file the user typed instead is kept for the next model)
+    default_file: str = "edited.safetensors"
+    overwrite: bool = False
+    #: deletions made since the model was opened or last saved ...
+    unsaved: bool = False
+    #: ... and whether the user was already told that opening another file or closing drops them
+    warned: bool = False
+
+
+@dataclass
 class _Inspector:
     """The Inspect panel: the pixel last Ctrl+clicked, the Gaussians that make it, which of them is shown."""
 
@@ -149,6 +179,8 @@ class _Inspector:
     rank: int = 0
     #: (index, time, splat scale) -> (`describe` rows, ellipsoid segments), remade when one of them changes
     cache: tuple | None = None
+    #: the camera the pixel was picked with
+    camera: object = None
     #: open the panel's Inspect section on the next frame (a new pick)
     reveal: bool = False
     #: the stack's Gaussians, the largest share first
@@ -165,6 +197,13 @@ class _Inspector:
 
 #: crops that apply faster than this follow the drag live; slower ones (large models) apply on release
 LIVE_CROP_MS = 50.0
+
+
+def edited_name(source: str) -> str:
+    """Where "Save edited" writes by default: ``<model file's stem>_edited.safetensors`` in the current folder
+    (like screenshots; the model's own folder may be read-only, e.g. the bundled sample's)."""
+    stem = Path(source).stem if Path(source).suffix else ""
+    return f"{stem}_edited.safetensors" if stem else "edited.safetensors"
 
 
 def camera_to_json(camera) -> dict:
@@ -189,8 +228,9 @@ class ViewerApp:
         self._stats = _Stats()
         self._path = _PathEditor()
         self._crop = _CropEditor()
+        self._editor = _Editor()
         self._inspect = _Inspector()
-        self._crop_tab_first = self.options.crop is not None  # --crop: show the Crop tab at start-up
+        self._edit_tab_first = self.options.crop is not None  # --crop: show the Edit tab at start-up
         self._views = []
         self._view_index = 0
         self._show_cameras = True
@@ -257,9 +297,14 @@ class ViewerApp:
         start = self.options.time if (first_load and self.options.time is not None) else 0.5 * (t0 + t1)
         extent = model_extent(model)  # once: over a second for 1M Gaussians
         self._crop = self._initial_crop(extent, self.options.crop if first_load else None)
-        self.model, self.checkpoint, self._extent = model, ckpt, extent
-        shown = self._apply_crop(start)
         self.source_name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
+        old = self._editor
+        # Save edited writes <name>_edited.safetensors unless the user typed a file
+        file = old.file if old.file != old.default_file else edited_name(self.source_name)
+        self._editor = _Editor(edits=Edits.of(len(model)), file=file, default_file=edited_name(self.source_name),
+                               overwrite=old.overwrite)
+        self.model, self.checkpoint, self._extent = model, ckpt, extent
+        shown = self._apply_edits(start)
         self.framing = framing_of(*extent) if shown is model else frame_model(shown)
         if first_load:
             o = self.options
@@ -285,25 +330,126 @@ class ViewerApp:
             return _CropEditor(enabled=True, lo=list(box.lo), hi=list(box.hi))
         return _CropEditor(lo=extent[0].tolist(), hi=extent[1].tolist())
 
-    def _apply_crop(self, t: float):
-        """Show the model cropped to the editor's box (or whole); returns the model now shown."""
-        ce = self._crop
+    def _in_box(self, box: CropBox | None) -> np.ndarray:
+        """``[N]`` bool: the loaded model's Gaussians that crop box `box` keeps (all of them without a box)."""
+        ed = self._editor
+        if box is None:
+            return np.ones(len(self.model), bool)
+        if ed.crop_cache is None or ed.crop_cache[0] != box:
+            ed.crop_cache = (box, crop_mask(self.model, box).numpy())
+        return ed.crop_cache[1]
+
+    def _kept(self, box: CropBox | None) -> np.ndarray:
+        """``[N]`` bool: the loaded model's Gaussians inside `box` and not deleted."""
+        return self._in_box(box) & ~self._editor.edits.deleted
+
+    def _apply_edits(self, t: float):
+        """Show the model cropped to the editor's box (or whole) without its deleted Gaussians; returns the model
+        now shown."""
+        ce, ed = self._crop, self._editor
         start = time.perf_counter()
         box = ce.box()
-        shown = self.model if box is None else crop(self.model, box)
-        self.renderer.set_model(shown, t)
+        keep = self._kept(box)
+        whole = bool(keep.all())
+        shown = self.model if whole else self.model.select(torch.from_numpy(keep))
+        ed.shown_index = np.flatnonzero(keep)
+        full = ed.full_arrays  # the whole model's arrays: a subset of them is a gather, not a new conversion
+        usable = full is not None and (full.time is None or full.time == float(t))  # a keyframed slice: at t only
+        self.renderer.set_model(shown, t, arrays=(full if whole else full.select(keep)) if usable else None)
+        if whole:
+            ed.full_arrays = self.renderer.splats
         self._generation += 1  # sorts of the previous set of Gaussians no longer apply
         self._order, self._requested = None, None
         ce.shown, ce.apply_ms = box, (time.perf_counter() - start) * 1e3
-        self.report["shown_gaussians"] = len(shown)
+        self.report.update(shown_gaussians=len(shown), deleted=ed.edits.num_deleted)
         self._inspect = _Inspector()  # its indices were into the previous set of Gaussians
         return shown
+
+    # --- selection and deletion ---------------------------------------------------------------------------------
+    def select_rect(self, camera, t: float, rect, mode: str = "add") -> int:
+        """Select (mode "add" / "replace") or unselect ("remove") the shown Gaussians whose centre at `t` lies in
+        `rect` (x0, y0, x1, y1: pixels of `camera`'s image; `selection.in_rect`); returns how many it caught."""
+        ed = self._editor
+        order = depth_order(self.renderer.splats_at(t), camera, t, self.settings.splat_scale)
+        caught = ed.shown_index[in_rect(order, rect)]
+        ed.edits.select(caught, mode)
+        self.report["selected"] = ed.edits.num_selected
+        self.report["selection"] = {"rect": [float(x) for x in rect], "time": t, "mode": mode,
+                                    "camera": camera_to_json(camera), "caught": len(caught)}
+        verb = "unselected" if mode == "remove" else "selected"
+        self.status = f"{verb} {len(caught):,} Gaussian(s); {ed.edits.num_selected:,} selected"
+        return len(caught)
+
+    def select_inspected(self) -> None:
+        """Add the Gaussian shown in the Inspect tab to the selection."""
+        hit = self._inspect.hit
+        if hit is None:
+            raise Splat4DError("Ctrl+click the model first: nothing is inspected")
+        ed = self._editor
+        ed.edits.select([ed.shown_index[hit.index]], "add")
+        self.report["selected"] = ed.edits.num_selected
+        self.status = f"{ed.edits.num_selected:,} selected"
+
+    def delete_selected(self) -> int:
+        """Delete the selected Gaussians (Undo brings them back); returns how many."""
+        ed = self._editor
+        count = ed.edits.delete_selected()
+        if not count:
+            raise Splat4DError("nothing is selected: Shift+drag over the model, or Select in the Inspect tab")
+        self._edited(f"deleted {count:,} Gaussian(s)")
+        return count
+
+    def _edited(self, what: str) -> None:
+        """After a change of the deleted set: show the rest, and mark the edits unsaved."""
+        ed = self._editor
+        ed.unsaved, ed.warned = True, False
+        self._apply_edits(self.playback.time)
+        self.report["selected"] = ed.edits.num_selected
+        self.status = f"{what}; {ed.edits.num_deleted:,} deleted, {len(self.renderer.model):,} shown"
+
+    def _undo(self) -> None:
+        if not self._editor.edits.undo():
+            raise Splat4DError("nothing to undo")
+        self._edited("undid the last deletion")
+
+    def _restore_all(self) -> None:
+        count = self._editor.edits.restore_all()
+        if not count:
+            raise Splat4DError("nothing is deleted")
+        self._edited(f"restored {count:,} Gaussian(s) (Undo deletes them again)")
+
+    def _delete_inspected(self) -> None:
+        """Delete the Gaussian shown in the Inspect tab, then inspect the same pixel again: the next Gaussian there
+        comes up, so a floater made of several can be removed click by click."""
+        hit = self._inspect.hit
+        if hit is None:
+            raise Splat4DError("Ctrl+click the model first: nothing is inspected")
+        ed = self._editor
+        pixel, camera = self._inspect.stack.pixel, self._inspect.camera
+        ed.edits.clear_selection()
+        ed.edits.select([ed.shown_index[hit.index]], "add")
+        self.delete_selected()
+        if camera is not None:
+            status = self.status
+            self.inspect(camera, self.playback.time, *pixel)
+            self.status = status
+
+    def _drops_unsaved_edits(self, action: str) -> bool:
+        """True when `action` (opening, closing) would drop deletions not yet saved and the user has not yet been
+        told: the status line tells them and the next attempt goes ahead."""
+        ed = self._editor
+        if not ed.unsaved or ed.warned:
+            return False
+        ed.warned = True
+        self.status = (f"{ed.edits.num_deleted:,} deleted Gaussian(s) are not saved: Save edited in the Edit tab, "
+                       f"or {action} again to drop them")
+        return True
 
     def inspect(self, camera, t: float, x: int, y: int) -> PixelStack:
         """Pick pixel (x, y) of `camera`'s image at time `t` (`SplatRenderer.pick`) and show its Gaussians in the
         Inspect panel, the largest share first."""
         stack = self.renderer.pick(camera, t, x, y, self.settings)
-        self._inspect = _Inspector(stack, reveal=True)
+        self._inspect = _Inspector(stack, camera=camera, reveal=True)
         top = stack.top
         self.status = (f"pixel ({x}, {y}): {len(stack.hits)} Gaussian(s), alpha {stack.alpha:.3f}" if top else
                        f"pixel ({x}, {y}): background, no Gaussian there")
@@ -328,18 +474,30 @@ class ViewerApp:
             ins.cache = (key, rows, ellipsoid_segments(g.means[0].double().numpy(), cov))
         return ins.cache[1], ins.cache[2]
 
-    def _save_cropped(self) -> None:
+    def _save_edited(self) -> None:
+        """Write what the window shows: the model cropped to the box (when on) without its deleted Gaussians, with
+        both edits in the provenance ("crop": the box; "deleted": Gaussians deleted by hand inside it)."""
         from splat4d.checkpoint import save_checkpoint
 
-        ce, ckpt = self._crop, self.checkpoint
-        box = ce.shown
-        if box is None:
-            raise Splat4DError("turn on 'crop to box' first: Save cropped writes what the box shows")
-        model = crop(self.model, box)
-        provenance = {**(ckpt.provenance or {}), "crop": box.provenance(len(model), len(self.model))}
-        save_checkpoint(ce.file, model, background=ckpt.background, provenance=provenance,
-                        training=ckpt.training, force=ce.overwrite)
-        self.status = f"saved {len(model):,} of {len(self.model):,} Gaussians to {ce.file}"
+        ed, ckpt, n = self._editor, self.checkpoint, len(self.model)
+        box = self._crop.shown
+        in_box = self._in_box(box)
+        keep = in_box & ~ed.edits.deleted
+        deleted = int(np.count_nonzero(in_box & ed.edits.deleted))
+        if box is None and not deleted:
+            raise Splat4DError("nothing to save: turn on 'crop to box' or delete Gaussians first")
+        if not keep.any():
+            raise Splat4DError("the edits leave no Gaussians to save")
+        provenance = dict(ckpt.provenance or {})
+        if box is not None:
+            provenance["crop"] = box.provenance(int(in_box.sum()), n)
+        if deleted:
+            provenance["deleted"] = {"count": deleted, "kept": int(keep.sum()), "of": n}
+        model = self.model.select(torch.from_numpy(keep))
+        save_checkpoint(ed.file, model, background=ckpt.background, provenance=provenance,
+                        training=ckpt.training, force=ed.overwrite)
+        ed.unsaved = False
+        self.status = f"saved {len(model):,} of {n:,} Gaussians to {ed.file}"
 
     def _update_frame_times(self) -> None:
         """The times that frame stepping visits: a keyframed model's keys, else its dataset's frame times."""
@@ -375,12 +533,19 @@ class ViewerApp:
                 if self.options.play_path:
                     self._path.playing, self._path.time = True, self._path.path.start
             self.report.update(time_start=self.playback.time, started=time.time())
+            width, height = glfw.get_framebuffer_size(self._window)
             if self.options.inspect is not None:
-                width, height = glfw.get_framebuffer_size(self._window)
                 self.inspect(*self._current_view(width, height), *self.options.inspect)
+            if self.options.select is not None:
+                self.select_rect(*self._current_view(width, height), self.options.select)
+                self._edit_tab_first = True
             last = time.perf_counter()
             frames = 0
-            while not glfw.window_should_close(self._window):
+            while True:
+                if glfw.window_should_close(self._window):
+                    if not self._drops_unsaved_edits("close the window"):
+                        break
+                    glfw.set_window_should_close(self._window, False)
                 glfw.poll_events()
                 now = time.perf_counter()
                 dt, last = now - last, now
@@ -430,7 +595,8 @@ class ViewerApp:
         glfw.terminate()
 
     def _open(self, path: str) -> None:
-        self._attempt(lambda: self.load(path))
+        if not self._drops_unsaved_edits("open the file"):
+            self._attempt(lambda: self.load(path))
 
     def _attempt(self, action, done: str | None = None) -> bool:
         """Run a user action; its one-line error (or `done`) goes to the panel's status line. True on success."""
@@ -514,7 +680,10 @@ class ViewerApp:
         box_lines = box_segments(box.lo, box.hi) if box is not None else np.zeros((0, 2, 3))
         inspected = self._inspected(self.playback.time)
         pick_lines = inspected[1] if inspected is not None else np.zeros((0, 2, 3))
-        for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR), (pick_lines, PICK_COLOR)):
+        marks = self._selection_markers(camera)
+        self.report["markers"] = len(marks) // 3
+        for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR), (pick_lines, PICK_COLOR),
+                             (marks, SELECTION_COLOR)):
             if len(lines):
                 segs = np.concatenate([lines, segs])
                 colors = np.concatenate([np.broadcast_to(np.asarray(color, np.float32), (len(lines), 3)), colors])
@@ -523,6 +692,16 @@ class ViewerApp:
             self.ctx.screen.use()
             self.ctx.viewport = (0, 0, camera.width, camera.height)
             self.overlay.draw(camera, segs, colors)
+
+    def _selection_markers(self, camera) -> np.ndarray:
+        """Crosses (`selection.marker_segments`) at the centres of the selected Gaussians that are shown, at the
+        displayed time."""
+        ed = self._editor
+        if not ed.edits.selected.any():
+            return np.zeros((0, 2, 3))
+        shown = np.flatnonzero(ed.edits.selected[ed.shown_index])
+        t = self.playback.time
+        return marker_segments(centres_at(self.renderer.splats_at(t), t, shown), camera)
 
     def _overlay_geometry(self, width: int, height: int, depth: float):
         """(path polyline, `Frustums` of the path keys and dataset cameras), remade only when what they show
@@ -584,16 +763,25 @@ class ViewerApp:
         io = imgui.get_io()
         c = self.controller
         width, height = glfw.get_framebuffer_size(self._window)
-        if not io.want_capture_mouse:
+        win_w, win_h = glfw.get_window_size(self._window)
+        # cursor in window coordinates -> framebuffer pixels (they differ on high-DPI screens)
+        cursor = (io.mouse_pos.x * width / max(win_w, 1), io.mouse_pos.y * height / max(win_h, 1))
+        ed = self._editor
+        if ed.drag is not None:  # a selection rectangle: follows the cursor until the button is released
+            ed.drag[2:] = cursor
+            if not imgui.is_mouse_down(imgui.MouseButton_.left):
+                rect, ed.drag = ed.drag, None
+                camera, t = self._current_view(width, height)
+                self._attempt(lambda: self.select_rect(camera, t, rect, "remove" if ed.drag_removes else "add"))
+        elif not io.want_capture_mouse:
             d = io.mouse_delta
             if io.key_ctrl and imgui.is_mouse_clicked(imgui.MouseButton_.left):
-                # cursor in window coordinates -> framebuffer pixels (they differ on high-DPI screens)
-                win_w, win_h = glfw.get_window_size(self._window)
-                x = int(io.mouse_pos.x * width / max(win_w, 1))
-                y = int(io.mouse_pos.y * height / max(win_h, 1))
+                x, y = int(cursor[0]), int(cursor[1])
                 if 0 <= x < width and 0 <= y < height:
                     camera, t = self._current_view(width, height)
                     self._attempt(lambda: self.inspect(camera, t, x, y))
+            elif io.key_shift and imgui.is_mouse_clicked(imgui.MouseButton_.left):
+                ed.drag, ed.drag_removes = [*cursor, *cursor], io.key_alt
             elif imgui.is_mouse_down(imgui.MouseButton_.left) and not io.key_ctrl and (d.x or d.y):
                 c.look(d.x, d.y) if self._fly else c.orbit(d.x, d.y)
                 self._path.playing = False
@@ -625,6 +813,10 @@ class ViewerApp:
             self._fly = not self._fly
         if imgui.is_key_pressed(key.p, False):
             self._screenshot_request = self._next_screenshot_name()
+        if imgui.is_key_pressed(key.delete, False) or imgui.is_key_pressed(key.backspace, False):
+            self._attempt(self.delete_selected)
+        if io.key_ctrl and imgui.is_key_pressed(key.z, False):
+            self._attempt(self._undo)
         if imgui.is_key_pressed(key.escape, False):
             glfw.set_window_should_close(self._window, True)
 
@@ -664,15 +856,27 @@ class ViewerApp:
         if imgui.begin_tab_bar("##sections"):
             for name, draw, selected in (("View", self._draw_view_ui, False),
                                          ("Path", self._draw_path_ui, False),
-                                         ("Crop", self._draw_crop_ui, self._crop_tab_first),
+                                         ("Edit", self._draw_edit_ui, self._edit_tab_first),
                                          ("Inspect", self._draw_inspect_ui, self._inspect.reveal)):
                 flags = imgui.TabItemFlags_.set_selected if selected else 0
                 if imgui.begin_tab_item(name, None, flags)[0]:
                     draw()
                     imgui.end_tab_item()
-            self._crop_tab_first = self._inspect.reveal = False
+            self._edit_tab_first = self._inspect.reveal = False
             imgui.end_tab_bar()
         self._apply_crop_edits()
+        ed = self._editor
+        if ed.drag is not None:  # the selection rectangle, in window coordinates
+            import glfw
+
+            width, height = glfw.get_framebuffer_size(self._window)
+            win_w, win_h = glfw.get_window_size(self._window)
+            kx, ky = win_w / max(width, 1), win_h / max(height, 1)
+            x0, y0, x1, y1 = normalise_rect(*ed.drag)
+            r, g, b = SELECTION_COLOR
+            imgui.get_foreground_draw_list().add_rect((x0 * kx, y0 * ky), (x1 * kx, y1 * ky),
+                                                      imgui.IM_COL32(int(255 * r), int(255 * g), int(255 * b), 255),
+                                                      0.0, 1.5)
 
         imgui.separator_text("File")
         changed, self._open_text = imgui.input_text("##open", getattr(self, "_open_text", ""))
@@ -788,10 +992,12 @@ class ViewerApp:
         atomic_write_json(pe.file, path_as_nerfstudio(pe.path, width, height, time_range=self.model.time_range),
                           force=pe.overwrite)
 
-    def _draw_crop_ui(self) -> None:
+    def _draw_edit_ui(self) -> None:
         from imgui_bundle import imgui
 
-        ce = self._crop
+        ce, ed = self._crop, self._editor
+        edits = ed.edits
+        imgui.separator_text("Crop box")
         _, ce.enabled = imgui.checkbox("crop to box", ce.enabled)
         imgui.same_line()
         _, ce.show = imgui.checkbox("show box", ce.show)
@@ -803,25 +1009,48 @@ class ViewerApp:
         if imgui.button("Fit to model"):
             ce.lo, ce.hi = self._extent[0].tolist(), self._extent[1].tolist()
         imgui.same_line()
-        imgui.text(f"{len(self.renderer.model):,} of {len(self.model):,} shown")
         edited = ce.edited()
         option = "--crop " + " ".join(f"{x:.6g}" for x in (*edited.lo, *edited.hi))
         if imgui.button("Copy option"):
             imgui.set_clipboard_text(option)
         if imgui.is_item_hovered():
             imgui.set_tooltip(f"{option}\n(for splat4d convert / render / view)")
+
+        imgui.separator_text("Delete Gaussians")
+        imgui.text_wrapped("Shift+drag: select what shows in a rectangle now (Shift+Alt+drag: unselect); "
+                           "Ctrl+click, then Select or Delete in the Inspect tab")
+        imgui.text(f"{edits.num_selected:,} selected, {edits.num_deleted:,} deleted")
+        if imgui.button("Delete (Del)"):
+            self._attempt(self.delete_selected)
         imgui.same_line()
-        if imgui.button("Save cropped"):
-            self._attempt(self._save_cropped)
+        if imgui.button("Invert"):
+            edits.invert_selection()
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("select every Gaussian not selected (e.g. select the object, invert, delete)")
         imgui.same_line()
-        _, ce.overwrite = imgui.checkbox("overwrite##crop", ce.overwrite)
-        _, ce.file = imgui.input_text("crop file", ce.file)
+        if imgui.button("Unselect"):
+            edits.clear_selection()
+        if imgui.button("Undo (Ctrl+Z)"):
+            self._attempt(self._undo)
+        imgui.same_line()
+        if imgui.button("Restore all"):
+            self._attempt(self._restore_all)
+
+        imgui.separator_text("Save")
+        imgui.text(f"{len(self.renderer.model):,} of {len(self.model):,} Gaussians shown")
+        _, ed.file = imgui.input_text("file##edit", ed.file)
+        if imgui.button("Save edited"):
+            self._attempt(self._save_edited)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("write what the window shows: the cropped model without its deleted Gaussians")
+        imgui.same_line()
+        _, ed.overwrite = imgui.checkbox("overwrite##edit", ed.overwrite)
 
     def _apply_crop_edits(self) -> None:
         """Show the edited box: at once when cropping is quick, else when the drag is released."""
         ce = self._crop
         if ce.box() != ce.shown and (not ce.dragging or ce.apply_ms < LIVE_CROP_MS):
-            self._apply_crop(self.playback.time)
+            self._apply_edits(self.playback.time)
 
     def _draw_inspect_ui(self) -> None:
         from imgui_bundle import imgui
@@ -859,6 +1088,16 @@ class ViewerApp:
             self.playback.time, self.playback.playing = peak_time(self.renderer.model, hit.index), False
         if imgui.is_item_hovered():
             imgui.set_tooltip("pause at the time this Gaussian shows most")
+        imgui.same_line()
+        if imgui.button("Select"):
+            self._attempt(self.select_inspected)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("add this Gaussian to the selection (Edit tab)")
+        imgui.same_line()
+        if imgui.button("Delete"):
+            self._attempt(self._delete_inspected)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("delete this Gaussian and inspect the pixel again (Ctrl+Z undoes)")
         imgui.same_line()
         if imgui.button("Clear##inspect"):
             self._inspect = _Inspector()

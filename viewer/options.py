@@ -46,6 +46,16 @@ def parse_pixel(text: str) -> tuple[int, int]:
     return int(v[0]), int(v[1])
 
 
+def parse_rect(text: str) -> tuple[float, float, float, float]:
+    """'10,20,300,200' -> (10.0, 20.0, 300.0, 200.0): two opposite corners of a rectangle of pixels, x then y from
+    the top-left corner."""
+    x0, y0, x1, y1 = parse_vector(text, 4, "rectangle")
+    if min(x0, y0, x1, y1) < 0 or x0 == x1 or y0 == y1:
+        raise OptionError(f"rectangle must be two opposite corners X0,Y0,X1,Y1 (pixels from the top left, not "
+                          f"negative, of non-zero width and height), got {text!r}")
+    return x0, y0, x1, y1
+
+
 def parse_background(text: str | None) -> tuple[tuple[float, float, float] | None, bool]:
     """(rgb or None for "the checkpoint's", transparent) from 'white', 'black', 'transparent', 'r,g,b' in [0, 1]
     or '#rrggbb'."""

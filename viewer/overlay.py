@@ -25,6 +25,8 @@ DATASET_COLOR = (0.35, 0.75, 1.0)
 SELECTED_COLOR = (1.0, 1.0, 1.0)
 CROP_COLOR = (0.3, 1.0, 0.4)
 PICK_COLOR = (1.0, 0.2, 0.9)
+#: Gaussians selected for deletion (crosses at their centres) and the selection rectangle being dragged
+SELECTION_COLOR = (1.0, 0.25, 0.2)
 
 
 def frustum_segments(camera: Camera, depth: float) -> np.ndarray:

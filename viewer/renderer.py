@@ -230,9 +230,11 @@ class SplatRenderer:
         return splatlib.needs_per_frame_upload(self._model)
 
     @with_context
-    def set_model(self, model, t: float | None = None) -> None:
-        """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`)."""
-        arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
+    def set_model(self, model, t: float | None = None, arrays: splatlib.SplatArrays | None = None) -> None:
+        """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`); `arrays`: its
+        arrays (at `t` for a keyframed model) when already at hand, e.g. `SplatArrays.select` of a larger model's."""
+        if arrays is None:
+            arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
         self._model = model
         self._typical_speed = None  # the speed mode's colour map top, made on first use (`typical_speed`)
         self._upload(arrays)

@@ -19,7 +19,7 @@ Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coeffic
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -81,6 +81,12 @@ class SplatArrays:
 
     def nbytes(self) -> int:
         return sum(a.nbytes for a in (self.mean_t, self.motion, self.cov, self.sh))
+
+    def select(self, mask: np.ndarray) -> "SplatArrays":
+        """The arrays of the Gaussians where `mask` (``[N]`` bool or indices) holds: the same as converting
+        ``model.select(mask)``, without converting again (a gather, ~10x faster)."""
+        return replace(self, mean_t=self.mean_t[mask], motion=self.motion[mask], cov=self.cov[mask],
+                       sh=self.sh[mask])
 
 
 def _np32(x: torch.Tensor) -> np.ndarray:

@@ -11,6 +11,8 @@ DESCRIPTION = """Open a model in a window with a Dear ImGui control panel.
 mouse: left drag orbit (look in fly mode), right/middle drag pan, wheel zoom
 keys:  W/A/S/D/Q/E fly (Shift: faster), Space play/pause, R reset view, F fly mode, P screenshot, Esc quit
 Ctrl+click: inspect the Gaussians that make that pixel (Inspect panel)
+Shift+drag: select the Gaussians that show in a rectangle (Shift+Alt+drag unselects); Delete deletes them,
+Ctrl+Z undoes; the Edit panel saves the cleaned model (crop box and deletions)
 Drop a model file on the window to open it. Needs a display (run under Xvfb on a server).
 
 With no CKPT it opens the bundled trained 'spinner' sample.
@@ -23,11 +25,12 @@ examples:
   splat4d view model.safetensors --crop -0.5 -0.5 0 0.5 0.5 1     (the panel's crop box on, at this box)
   splat4d view model.safetensors --paused --time 0.3 --inspect 640,360 --exit-after 2 --report px.json
       (which Gaussians make the window's centre pixel at t = 0.3, and the largest one's attributes)
+  splat4d view model.safetensors --paused --time 0.3 --select 0,0,200,720   (the left edge's floaters selected)
 """
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import argtype, parse_pixel, parse_size
+    from splat4d.viewer.options import argtype, parse_pixel, parse_rect, parse_size
 
     from ._crop import add_crop_arg
 
@@ -65,11 +68,15 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--inspect", type=argtype(parse_pixel), metavar="X,Y",
                    help="start with this window pixel inspected, as if Ctrl+clicked (column, row from the top left; "
                         "--report lists its Gaussians)")
+    p.add_argument("--select", type=argtype(parse_rect), metavar="X0,Y0,X1,Y1",
+                   help="start with the Gaussians whose centre shows in this window rectangle selected, as if "
+                        "Shift+dragged (corners in pixels from the top left)")
     a = p.add_argument_group("automation (scripted captures, tests)")
     a.add_argument("--exit-after", type=int, default=None, metavar="FRAMES", help="close after this many frames")
     a.add_argument("--screenshot", metavar="PNG", help="with --exit-after: save the last frame here")
     a.add_argument("--report", metavar="JSON",
-                   help="write frame count, times, the screenshot's camera and the --inspect pixel's Gaussians here")
+                   help="write frame count, times, the screenshot's camera, the --inspect pixel's Gaussians and the "
+                        "--select count here")
     a.add_argument("--force", action="store_true", help="overwrite an existing --screenshot file")
 
 
@@ -110,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
                          screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
                          adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
                          screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop,
-                         inspect=args.inspect)
+                         inspect=args.inspect, select=args.select)
     # fail with a one-line error before opening a window
     if args.path:
         CameraPath.load(args.path)

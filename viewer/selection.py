@@ -1,0 +1,146 @@
+"""Selecting and deleting Gaussians in the viewer (floater clean-up): what a screen rectangle selects, the
+markers that show a selection, and the edit state with its undo history.
+
+A rectangle selects the Gaussians whose centre *at the displayed time* projects into it, through every depth, among
+those the renderer draws at that time (`sorting.depth_order`'s culls: faded out, below 1/255 opacity, behind the
+near plane, off screen). A Gaussian that shows only at other times is therefore never caught by a rectangle drawn
+now, which is what cleaning a 4D model needs: a floater that flickers in at t = 0.3 is selected at t = 0.3 without
+touching the object that passes the same spot at t = 0.7.
+
+`Edits` holds the user's deletions and selection as masks over the *loaded* model's Gaussians, so that they survive
+crop-box changes (the renderer shows a subset; `shown_index` maps its indices back).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from splat4d.cameras import Camera
+
+from .sorting import SortResult
+from .splats import SplatArrays
+
+#: How many deletions Undo can take back.
+UNDO_LEVELS = 32
+#: Selection markers drawn at most (evenly spaced through the selection beyond): lines are cheap, not free.
+MAX_MARKERS = 20_000
+#: Modes of `Edits.select`.
+SELECT_MODES = ("add", "remove", "replace")
+
+
+def normalise_rect(x0: float, y0: float, x1: float, y1: float) -> tuple[float, float, float, float]:
+    """A rectangle (left, top, right, bottom) from any two opposite corners (pixels, y down)."""
+    return min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1)
+
+
+def in_rect(order: SortResult, rect: tuple[float, float, float, float]) -> np.ndarray:
+    """Indices (into the sorted model, ascending) of the Gaussians of `order` whose projected centre lies in `rect`
+    (left, top, right, bottom in the sorted camera's pixels, y down; left/top edges inclusive). `order` is a
+    `SortResult` of the camera and time the rectangle was drawn at: its boxes hold each drawn Gaussian's centre."""
+    left, top, right, bottom = normalise_rect(*rect)
+    u, v = order.boxes[:, 0], order.boxes[:, 1]
+    inside = (u >= left) & (u < right) & (v >= top) & (v < bottom)
+    return np.sort(order.order[inside].astype(np.int64))
+
+
+def centres_at(splats: SplatArrays, t: float, indices: np.ndarray) -> np.ndarray:
+    """``[M, 3]`` centres at time `t` of Gaussians `indices` of `splats` (the conditional mean, moving linearly in t;
+    a keyframed slice has no motion and stays where it was sliced)."""
+    m = splats.mean_t[indices]
+    return m[:, :3].astype(np.float64) + splats.motion[indices, :3] * (t - m[:, 3:4])
+
+
+def marker_segments(points: np.ndarray, camera: Camera, pixels: float = 4.0) -> np.ndarray:
+    """``[3M, 2, 3]`` segments: a 3-axis cross `pixels` px across (half-size at each point's depth) at each of
+    ``[M, 3]`` `points` in front of `camera`; points behind it are left out. At most `MAX_MARKERS` crosses, evenly
+    spaced through `points`."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(pts) > MAX_MARKERS:
+        pts = pts[np.linspace(0, len(pts) - 1, MAX_MARKERS).astype(np.int64)]
+    w2c = np.asarray(camera.w2c, np.float64)
+    z = pts @ w2c[2, :3] + w2c[2, 3]
+    pts, z = pts[z > 0], z[z > 0]
+    half = 0.5 * pixels * z / camera.fy
+    segs = np.empty((len(pts), 3, 2, 3))
+    for axis in range(3):
+        offset = np.zeros((len(pts), 3))
+        offset[:, axis] = half
+        segs[:, axis, 0] = pts - offset
+        segs[:, axis, 1] = pts + offset
+    return segs.reshape(-1, 2, 3)
+
+
+@dataclass
+class Edits:
+    """Deleted and selected Gaussians of a model of `len(deleted)` Gaussians, and the deletions Undo restores.
+
+    Attributes:
+        deleted, selected: ``[N]`` bool masks over the loaded model; a deleted Gaussian is never selected.
+        history: earlier `deleted` masks, the newest last (at most `UNDO_LEVELS`).
+    """
+
+    deleted: np.ndarray
+    selected: np.ndarray
+    history: list = field(default_factory=list)
+
+    @classmethod
+    def of(cls, n: int) -> "Edits":
+        return cls(np.zeros(n, bool), np.zeros(n, bool))
+
+    @property
+    def num_deleted(self) -> int:
+        return int(self.deleted.sum())
+
+    @property
+    def num_selected(self) -> int:
+        return int(self.selected.sum())
+
+    def select(self, indices: np.ndarray, mode: str = "add") -> int:
+        """Add `indices` (of the loaded model) to the selection, remove them from it, or make them the selection
+        (`SELECT_MODES`); deleted ones are skipped. Returns how many are selected now."""
+        if mode not in SELECT_MODES:
+            raise ValueError(f"unknown selection mode {mode!r}")
+        idx = np.asarray(indices, np.int64)
+        if mode == "replace":
+            self.selected[:] = False
+        self.selected[idx] = mode != "remove"
+        self.selected &= ~self.deleted
+        return self.num_selected
+
+    def clear_selection(self) -> None:
+        self.selected[:] = False
+
+    def invert_selection(self) -> int:
+        """Select every Gaussian that is neither selected nor deleted (and unselect the others)."""
+        self.selected = ~self.selected & ~self.deleted
+        return self.num_selected
+
+    def delete_selected(self) -> int:
+        """Delete the selection (one Undo step); returns how many were deleted."""
+        count = self.num_selected
+        if count:
+            self._remember()
+            self.deleted |= self.selected
+            self.selected[:] = False
+        return count
+
+    def undo(self) -> bool:
+        """Restore the Gaussians of the last deletion (they come back unselected). False when there is none."""
+        if not self.history:
+            return False
+        self.deleted = self.history.pop()
+        return True
+
+    def restore_all(self) -> int:
+        """Bring back every deleted Gaussian (one Undo step); returns how many."""
+        count = self.num_deleted
+        if count:
+            self._remember()
+            self.deleted = np.zeros_like(self.deleted)
+        return count
+
+    def _remember(self) -> None:
+        self.history.append(self.deleted.copy())
+        del self.history[:-UNDO_LEVELS]

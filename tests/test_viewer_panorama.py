@@ -125,3 +125,69 @@ def test_render_writes_panoramas_and_their_cameras_as_an_equirectangular_path(tm
     assert np.abs(cv2.imread(str(again)).astype(int) - img.astype(int)).max() <= 1
     bad = render("--out", str(tmp_path / "bad.png"), "--projection", "equirect", "--size", "300x100")
     assert bad.returncode == 1 and "twice as wide" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_panorama_videos_carry_the_spherical_tag(tmp_path):
+    """An equirectangular .mp4 or .mov is tagged as a 360° video (Spherical Video V1) and still decodes frame for
+    frame; a flat render is not tagged."""
+    import av
+
+    from splat4d.viewer.headless import render_to_file
+    from splat4d.viewer.spherical import spherical_projection
+
+    model = gaussians_at(np.array([direction(0, 0) * 2 + CAMERA.position]), [[1.0, 0.2, 0.1]], 0.4)
+    for suffix in (".mp4", ".mov"):
+        out = tmp_path / f"pano{suffix}"
+        render_to_file(model, out, [CAMERA] * 3, [0.0] * 3, equirect=Equirect(64, 32))
+        assert spherical_projection(out) == "equirectangular"
+        with av.open(str(out)) as c:
+            frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+        assert len(frames) == 3 and frames[0].shape == (32, 64, 3)
+        assert frames[0][16, 32, 0] > 150  # the Gaussian straight ahead, at the panorama's centre
+    flat = tmp_path / "flat.mp4"
+    render_to_file(model, flat, [CAMERA] * 2, [0.0] * 2)
+    assert spherical_projection(flat) is None
+
+
+def test_tagging_a_fast_start_file_shifts_its_chunk_offsets(tmp_path):
+    """With the 'moov' box before the media data, tagging moves the media: every chunk offset is shifted, so the
+    frames decode exactly as before; tagging twice changes nothing."""
+    import av
+
+    from splat4d.viewer.spherical import spherical_projection, tag_equirectangular
+
+    path = tmp_path / "fast.mp4"
+    with av.open(str(path), "w", options={"movflags": "faststart"}) as c:
+        stream = c.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 64, 32, "yuv420p"
+        stream.options = {"g": "2"}  # several chunks
+        for i in range(12):
+            img = np.zeros((32, 64, 3), np.uint8)
+            img[:, 5 * i:5 * i + 5] = (200, 60, 20)
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                c.mux(packet)
+        for packet in stream.encode():
+            c.mux(packet)
+
+    def top_level(p):
+        data, out, pos = p.read_bytes(), [], 0
+        while pos < len(data):
+            size = int.from_bytes(data[pos:pos + 4], "big")
+            out.append(data[pos + 4:pos + 8])
+            pos += size
+        return out
+
+    def decode(p):
+        with av.open(str(p)) as c:
+            return [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+
+    kinds = top_level(path)
+    assert kinds.index(b"moov") < kinds.index(b"mdat")  # a fast-start file
+    before = decode(path)
+    tag_equirectangular(path)
+    assert spherical_projection(path) == "equirectangular"
+    after = decode(path)
+    assert len(after) == 12 and all(np.array_equal(a, b) for a, b in zip(before, after))
+    tagged = path.read_bytes()
+    tag_equirectangular(path)
+    assert path.read_bytes() == tagged

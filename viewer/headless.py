@@ -106,7 +106,7 @@ def render_to_file(model, out: str | os.PathLike, cameras: Sequence[Camera], tim
     (width, height), = {(equirect.width, equirect.height)} if equirect is not None else sizes
     summary = RenderSummary()
     with open_output(out, width, height, fps, settings.transparent, image_format, force, crf,
-                     frames=len(cameras)) as writer:
+                     frames=len(cameras), spherical=equirect is not None) as writer:
         for rgba in render_frames(model, cameras, times, settings, summary=summary, progress=progress,
                                   equirect=equirect):
             writer.write(rgba)

@@ -4,6 +4,7 @@ Frames arrive as the renderer's display images: ``[H, W, 4]`` float32 RGBA, top 
 by alpha (alpha is 1 everywhere over an opaque background). What each format stores:
 
 * ``.mp4``: H.264 (libx264), yuv420p 8-bit, opaque (no alpha channel; even width and height).
+  360° panoramas (.mp4 and .mov) carry the spherical-video tag (`splat4d.viewer.spherical`).
 * ``.mov``: Apple ProRes (prores_ks), 10-bit: 422 HQ over an opaque background, 4444 with an alpha channel over a
   transparent one: the intermediate that editors and compositors (Resolve, Premiere, After Effects, Nuke) read.
 * ``.webm``: VP9 (libvpx), yuv420p, or yuva420p with alpha over a transparent background, which browsers play
@@ -32,6 +33,8 @@ import numpy as np
 
 from splat4d.errors import Splat4DError
 from splat4d.fileio import atomic_dir, atomic_path, check_writable
+
+from .spherical import TAGGABLE_SUFFIXES, tag_equirectangular
 
 IMAGE_SUFFIXES = (".png", ".exr")
 
@@ -232,7 +235,7 @@ def output_kind(out: str | os.PathLike) -> str:
 @contextlib.contextmanager
 def open_output(out: str | os.PathLike, width: int, height: int, fps: float, transparent: bool = False,
                 image_format: str = "png", force: bool = False, crf: int | None = None,
-                frames: int | None = None) -> Iterator:
+                frames: int | None = None, spherical: bool = False) -> Iterator:
     """Yield a writer with ``write(rgba)`` for `out`; the output appears (atomically) only if the block succeeds.
 
     Args:
@@ -242,6 +245,8 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
         crf: constant-quality setting of .mp4 / .webm (default `DEFAULT_CRF`); .mov refuses it.
         image_format: "png" or "exr", for sequences.
         frames: how many frames will come, if known: a single image refuses more than one before any is drawn.
+        spherical: the frames are equirectangular 360° panoramas: an .mp4 / .mov gets the spherical-video tag
+            (`splat4d.viewer.spherical`) so that players show it as a panorama.
     """
     kind = output_kind(out)
     path = Path(out)
@@ -255,6 +260,8 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
                 yield writer
             finally:
                 writer.close()
+            if spherical and path.suffix.lower() in TAGGABLE_SUFFIXES:
+                tag_equirectangular(tmp)
     elif kind == "image":
         with atomic_path(path, force) as tmp:
             writer = SingleImageWriter(tmp, transparent, out)

@@ -79,7 +79,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     c.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
     c.add_argument("--projection", choices=PROJECTIONS, default=None,
                    help="equirect: 360° panoramas (2:1) seen from each camera's position, its view direction at "
-                        "the centre; --fov does not apply (default perspective, or what the path file says)")
+                        "the centre, .mp4/.mov tagged as 360° video; --fov does not apply (default perspective, or "
+                        "what the path file says)")
     c.add_argument("--up", default="z", choices=("x", "y", "z", "-x", "-y", "-z"), help="world up axis (default z)")
     t = p.add_argument_group("scene time")
     t.add_argument("--time-mode", choices=("loop", "timelapse", "hold", "path"), default=None,
@@ -109,6 +110,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
+    from pathlib import Path
+
     from splat4d.errors import CameraError
     from splat4d.formats import load_model
     from splat4d.samples.trained import trained_checkpoint
@@ -185,6 +189,9 @@ def run(args: argparse.Namespace) -> int:
     if mode == "path" and path is None:
         raise CameraError("--time-mode path needs --path or --cameras")
 
+    if equirect is not None and Path(args.out).suffix.lower() == ".webm":
+        print("note: a .webm panorama carries no 360° tag (write .mp4 or .mov for players to show it as 360°)",
+              file=sys.stderr)
     summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
                              progress=False if args.quiet else "render", crf=args.crf, equirect=equirect)
     if args.save_cameras:

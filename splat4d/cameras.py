@@ -175,6 +175,14 @@ class Camera:
             uv = np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], -1)
         return uv, z
 
+    def unproject(self, pixels: np.ndarray, depths: np.ndarray) -> np.ndarray:
+        """Pixel coordinates ``[N, 2]`` (x, y; pixel i spans [i, i + 1)) at camera-space depths ``[N]`` -> world points
+        ``[N, 3]``; the inverse of `project`."""
+        uv = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(depths, dtype=np.float64).reshape(-1)
+        p = np.stack([(uv[:, 0] - self.cx) / self.fx * z, (uv[:, 1] - self.cy) / self.fy * z, z], -1)
+        return p @ self.c2w[:3, :3].T + self.c2w[:3, 3]
+
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera rendering `width` x `height` pixels (intrinsics scaled per axis)."""
         sx, sy = width / self.width, height / self.height

@@ -71,6 +71,7 @@ def test_projection_matches_pixel_convention_and_gl_matrix():
     np.testing.assert_allclose(px, uv, atol=1e-9)
     small = cam.resized(40, 30)
     np.testing.assert_allclose(small.project(pts)[0], uv / 2, atol=1e-9)
+    np.testing.assert_allclose(cam.unproject(uv, z), pts, atol=1e-12)  # the inverse, through non-square pixels
 
 
 def test_bad_cameras_are_rejected():

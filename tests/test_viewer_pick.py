@@ -152,3 +152,45 @@ def test_app_inspects_a_pixel_and_forgets_it_on_crop(tmp_path):
     assert app._inspect.stack is None and app._inspected(0.5) is None
     assert CropBox((-0.2,) * 3, (0.2,) * 3) == app._crop.shown
     app.renderer.release()
+
+
+def test_surface_depth_is_where_half_the_pixel_is_accumulated():
+    from splat4d.viewer.pick import PixelHit, PixelStack
+
+    hits = tuple(PixelHit(i, 0.5, w, d, (1.0, 1.0, 1.0)) for i, (w, d) in enumerate([(0.1, 1.0), (0.3, 2.0),
+                                                                                      (0.5, 3.0)]))
+    assert PixelStack((0, 0), hits, 0.9, (0.9, 0.9, 0.9)).surface_depth == 3.0  # 0.1 + 0.3 < 0.45 <= 0.9
+    assert PixelStack((0, 0), hits[:2], 0.4, (0.4,) * 3).surface_depth == 2.0  # translucent: half of its 0.4
+    assert PixelStack((0, 0), (), 0.0, (0.0,) * 3).surface_depth is None
+
+
+def test_app_measures_the_distance_between_two_surfaces(tmp_path):
+    """Alt+click twice (`ViewerApp.measure`): two small opaque blobs at known places, clicked at the pixels their
+    centres project to, are measured at their true distance (to the half-pixel the click is rounded to); a third
+    click starts again; the background is a one-line error."""
+    from splat4d.model import static_gaussians4d
+    from splat4d.viewer.app import AppOptions, ViewerApp
+
+    ends = np.array([[-0.5, 0.0, 0.1], [0.6, 0.8, -0.3]])
+    model = static_gaussians4d(torch.tensor(ends), torch.full((2, 3), 0.04, dtype=torch.float64),
+                               torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64),
+                               torch.full((2,), 0.99, dtype=torch.float64), torch.ones(2, 3, dtype=torch.float64))
+    ckpt = save_checkpoint(tmp_path / "two.safetensors", model)
+    app = ViewerApp(ckpt, AppOptions(play=False))
+    app.renderer = SplatRenderer(headless_context())
+    app.load(str(ckpt))
+    cam = look_at((0.0, -4.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=40, width=128, height=128)
+    uv, z = cam.project(ends)
+    pixel = z[0] / cam.fx  # world size of a pixel at that depth
+    first = app.measure(cam, 0.5, int(uv[0, 0]), int(uv[0, 1]))
+    assert np.linalg.norm(first - ends[0]) < pixel and app._measure.distance is None
+    second = app.measure(cam, 0.5, int(uv[1, 0]), int(uv[1, 1]))
+    assert np.linalg.norm(second - ends[1]) < pixel
+    true = float(np.linalg.norm(ends[1] - ends[0]))
+    assert abs(app._measure.distance - true) < 2 * pixel
+    assert app.report["measured"]["distance"] == app._measure.distance
+    assert app._measure_lines(cam).shape == (3 * 2 + 1, 2, 3)  # two crosses and the tape
+    app.measure(cam, 0.5, int(uv[0, 0]), int(uv[0, 1]))
+    assert len(app._measure.points) == 1
+    assert not app._attempt(lambda: app.measure(cam, 0.5, 0, 0)) and "no surface" in app.status
+    app.renderer.release()

@@ -3,7 +3,7 @@ the moderngl `SplatRenderer`.
 
 Controls: left drag orbits (looks around in fly mode), right or middle drag pans, the wheel zooms, W/A/S/D and
 Q/E fly, Space plays/pauses, R resets the view, F toggles fly mode, P takes a screenshot, Ctrl+click inspects the
-Gaussians under the cursor, Shift+drag selects Gaussians (Shift+Alt+drag unselects), Delete deletes the selection,
+Gaussians under the cursor, Alt+click measures, Shift+drag selects Gaussians (Shift+Alt+drag unselects), Delete deletes the selection,
 Ctrl+Z undoes a deletion, Esc quits. Drop a model file on the window (or type its path in the panel) to open it.
 
 Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the newest finished back-to-front order
@@ -21,7 +21,8 @@ window asks a second time.
 
 Inspect (Ctrl+click, `SplatRenderer.pick`): the Gaussians that make the clicked pixel, ranked by their share of its
 colour, with the chosen one's attributes (`splat4d.viewer.pick.describe`) and its 2-sigma ellipsoid drawn over the
-model as it moves; the panel can jump to the time it shows most.
+model as it moves; the panel can jump to the time it shows most. Measure (Alt+click twice): the distance between the
+surfaces seen at two pixels (`PixelStack.surface_depth`, unprojected).
 """
 
 from __future__ import annotations
@@ -43,8 +44,8 @@ from splat4d.model import CropBox, crop_mask
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
-from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR, SELECTION_COLOR,
-                      Frustums, LineRenderer, box_segments, ellipsoid_segments, path_segments)
+from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, MEASURE_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR,
+                      SELECTION_COLOR, Frustums, LineRenderer, box_segments, ellipsoid_segments, path_segments)
 from .pick import PixelHit, PixelStack, inspect_gaussian, peak_time
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .selection import Edits, centres_at, in_rect, marker_segments, normalise_rect
@@ -195,6 +196,18 @@ class _Inspector:
         return ranked[min(self.rank, len(ranked) - 1)] if ranked else None
 
 
+@dataclass
+class _Measure:
+    """The measuring tape: up to two world points (the surfaces under two Alt+clicks) and the pixels they came from."""
+
+    points: list = field(default_factory=list)
+    pixels: list = field(default_factory=list)
+
+    @property
+    def distance(self) -> float | None:
+        return float(np.linalg.norm(self.points[1] - self.points[0])) if len(self.points) == 2 else None
+
+
 #: crops that apply faster than this follow the drag live; slower ones (large models) apply on release
 LIVE_CROP_MS = 50.0
 
@@ -230,6 +243,7 @@ class ViewerApp:
         self._crop = _CropEditor()
         self._editor = _Editor()
         self._inspect = _Inspector()
+        self._measure = _Measure()
         self._edit_tab_first = self.options.crop is not None  # --crop: show the Edit tab at start-up
         self._views = []
         self._view_index = 0
@@ -304,6 +318,7 @@ class ViewerApp:
         self._editor = _Editor(edits=Edits.of(len(model)), file=file, default_file=edited_name(self.source_name),
                                overwrite=old.overwrite)
         self.model, self.checkpoint, self._extent = model, ckpt, extent
+        self._measure = _Measure()  # points on the previous model
         shown = self._apply_edits(start)
         self.framing = framing_of(*extent) if shown is model else frame_model(shown)
         if first_load:
@@ -460,6 +475,35 @@ class ViewerApp:
             "top": None if top is None else {"index": top.index, "weight": top.weight,
                                              "attributes": dict(self._inspected(t)[0])}}  # rank 0 = top
         return stack
+
+    def measure(self, camera, t: float, x: int, y: int) -> np.ndarray:
+        """Put an end of the measuring tape on the surface seen at pixel (x, y) of `camera`'s image at time `t` (the
+        pick's `surface_depth`, unprojected through the pixel centre); a third point starts a new measurement.
+        Returns the world point."""
+        stack = self.renderer.pick(camera, t, x, y, self.settings)
+        depth = stack.surface_depth
+        if depth is None:
+            raise Splat4DError(f"pixel ({x}, {y}) shows no surface to measure from (background)")
+        point = camera.unproject([[x + 0.5, y + 0.5]], [depth])[0]
+        m = self._measure
+        if len(m.points) == 2:
+            m.points, m.pixels = [], []
+        m.points.append(point)
+        m.pixels.append((x, y))
+        where = "(" + ", ".join(f"{v:.4g}" for v in point) + ")"
+        self.status = f"measure: point {len(m.points)} at {where}" + \
+            (f"; distance {m.distance:.4g}" if m.distance is not None else "; Alt+click the second point")
+        self.report["measured"] = {"points": [p.tolist() for p in m.points], "pixels": [list(p) for p in m.pixels],
+                                   "distance": m.distance, "time": t, "camera": camera_to_json(camera)}
+        return point
+
+    def _measure_lines(self, camera) -> np.ndarray:
+        """The tape's ends (crosses) and the segment between them."""
+        pts = self._measure.points
+        if not pts:
+            return np.zeros((0, 2, 3))
+        ends = marker_segments(np.array(pts), camera, pixels=10.0)
+        return np.concatenate([ends, np.array(pts)[None]]) if len(pts) == 2 else ends
 
     def _inspected(self, t: float) -> tuple[list, np.ndarray] | None:
         """(`describe` rows, 2-sigma ellipsoid segments at the splat scale) of the inspected Gaussian at `t`."""
@@ -683,7 +727,7 @@ class ViewerApp:
         marks = self._selection_markers(camera)
         self.report["markers"] = len(marks) // 3
         for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR), (pick_lines, PICK_COLOR),
-                             (marks, SELECTION_COLOR)):
+                             (marks, SELECTION_COLOR), (self._measure_lines(camera), MEASURE_COLOR)):
             if len(lines):
                 segs = np.concatenate([lines, segs])
                 colors = np.concatenate([np.broadcast_to(np.asarray(color, np.float32), (len(lines), 3)), colors])
@@ -780,6 +824,11 @@ class ViewerApp:
                 if 0 <= x < width and 0 <= y < height:
                     camera, t = self._current_view(width, height)
                     self._attempt(lambda: self.inspect(camera, t, x, y))
+            elif io.key_alt and not io.key_shift and imgui.is_mouse_clicked(imgui.MouseButton_.left):
+                x, y = int(cursor[0]), int(cursor[1])
+                if 0 <= x < width and 0 <= y < height:
+                    camera, t = self._current_view(width, height)
+                    self._attempt(lambda: self.measure(camera, t, x, y))
             elif io.key_shift and imgui.is_mouse_clicked(imgui.MouseButton_.left):
                 ed.drag, ed.drag_removes = [*cursor, *cursor], io.key_alt
             elif imgui.is_mouse_down(imgui.MouseButton_.left) and not io.key_ctrl and (d.x or d.y):
@@ -1053,6 +1102,21 @@ class ViewerApp:
             self._apply_edits(self.playback.time)
 
     def _draw_inspect_ui(self) -> None:
+        from imgui_bundle import imgui
+
+        self._draw_pick_ui()
+        imgui.separator_text("Measure")
+        m = self._measure
+        if not m.points:
+            imgui.text_wrapped("Alt+click two points of the model: the distance between the surfaces there")
+            return
+        for i, p in enumerate(m.points):
+            imgui.text(f"point {i + 1}: (" + ", ".join(f"{v:.4g}" for v in p) + ")")
+        imgui.text(f"distance {m.distance:.4g}" if m.distance is not None else "Alt+click the second point")
+        if imgui.button("Clear##measure"):
+            self._measure = _Measure()
+
+    def _draw_pick_ui(self) -> None:
         from imgui_bundle import imgui
 
         ins = self._inspect

@@ -27,6 +27,8 @@ CROP_COLOR = (0.3, 1.0, 0.4)
 PICK_COLOR = (1.0, 0.2, 0.9)
 #: Gaussians selected for deletion (crosses at their centres) and the selection rectangle being dragged
 SELECTION_COLOR = (1.0, 0.25, 0.2)
+#: the measuring tape: its two ends and the segment between them
+MEASURE_COLOR = (0.55, 1.0, 1.0)
 
 
 def frustum_segments(camera: Camera, depth: float) -> np.ndarray:

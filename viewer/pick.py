@@ -63,6 +63,18 @@ class PixelStack:
         """The Gaussian that gives the pixel most of its colour (largest weight), or None over the background."""
         return max(self.hits, key=lambda h: h.weight) if self.hits else None
 
+    @property
+    def surface_depth(self) -> float | None:
+        """Camera depth of the surface seen at the pixel: that of the Gaussian at which the accumulated weight
+        first reaches half the pixel's alpha (the median depth of 3DGS surface extraction, taken relative to the
+        alpha so that a translucent pixel has one too); None over the background."""
+        half, total = 0.5 * self.alpha, 0.0
+        for h in self.hits:
+            total += h.weight
+            if total >= half:
+                return h.depth
+        return None
+
 
 def footprint_alpha(records: np.ndarray, pixel: tuple[float, float]) -> np.ndarray:
     """``[K]`` alpha of each pre-processed Gaussian at the pixel centre `pixel` (x, y, y down): the splat fragment

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import Camera, orbit
+from splat4d.cameras import orbit
 from splat4d.checkpoint import load_checkpoint, save_checkpoint
 from splat4d.samples import trained_checkpoint
 from splat4d.train import losses
+from splat4d.viewer.app import camera_from_json
 from splat4d.viewer.camera_path import CameraKey, CameraPath
 from splat4d.viewer.renderer import RenderSettings, render_image
 from splat4d.viewer.synthetic import synthetic_model
@@ -65,6 +66,15 @@ def run_view(display: str, *args: str) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
+def view_report(display: str, ckpt, tmp_path, *args: str) -> dict:
+    """The ``--report`` of a 160x120 window paused at t = 0.5 for 2 frames, with `args` added."""
+    report_path = tmp_path / "report.json"
+    proc = run_view(display, str(ckpt), "--size", "160x120", "--paused", "--time", "0.5", *args, "--exit-after", "2",
+                    "--report", str(report_path))
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(report_path.read_text())
+
+
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
     return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
@@ -74,7 +84,7 @@ def headless_of(report: dict, model) -> np.ndarray:
     """The EGL render of the view a screenshot recorded, quantised like the window's 8-bit framebuffer."""
     shot = report["screenshot"]
     c = shot["camera"]
-    cam = Camera(np.array(c["c2w"]), c["fx"], c["fy"], c["cx"], c["cy"], c["width"], c["height"])
+    cam = camera_from_json(c)
     img = render_image(model, cam, shot["time"], RenderSettings(mode=shot["mode"], background=shot["background"],
                                                                 splat_scale=shot["splat_scale"]))
     return np.round(np.clip(img[..., :3], 0, 1) * 255) / 255
@@ -225,15 +235,11 @@ def test_app_inspects_a_pixel_given_on_the_command_line(display, files, tmp_path
     from splat4d.viewer.renderer import SplatRenderer, headless_context
 
     root, model, ckpt = files
-    report_path = tmp_path / "report.json"
-    proc = run_view(display, str(ckpt), "--size", "160x120", "--paused", "--time", "0.5", "--inspect", "80,60",
-                    "--exit-after", "2", "--report", str(report_path))
-    assert proc.returncode == 0, proc.stderr
-    report = json.loads(report_path.read_text())
+    report = view_report(display, ckpt, tmp_path, "--inspect", "80,60")
     got = report["inspected"]
     assert got["pixel"] == [80, 60] and got["time"] == 0.5 and got["gaussians"] > 1
     c = got["camera"]
-    cam = Camera(np.array(c["c2w"]), c["fx"], c["fy"], c["cx"], c["cy"], c["width"], c["height"])
+    cam = camera_from_json(c)
     r = SplatRenderer(headless_context(), model)
     want = r.pick(cam, 0.5, 80, 60)
     r.release()
@@ -255,14 +261,10 @@ def test_app_selects_the_gaussians_in_a_rectangle_given_on_the_command_line(disp
     from splat4d.viewer.splats import to_arrays
 
     root, model, ckpt = files
-    report_path = tmp_path / "report.json"
-    proc = run_view(display, str(ckpt), "--size", "160x120", "--paused", "--time", "0.5", "--select", "90,100,20,10",
-                    "--exit-after", "2", "--report", str(report_path))
-    assert proc.returncode == 0, proc.stderr
-    report = json.loads(report_path.read_text())
+    report = view_report(display, ckpt, tmp_path, "--select", "90,100,20,10")
     sel = report["selection"]
     c = sel["camera"]
-    cam = Camera(np.array(c["c2w"]), c["fx"], c["fy"], c["cx"], c["cy"], c["width"], c["height"])
+    cam = camera_from_json(c)
     assert (c["width"], c["height"], sel["time"]) == (160, 120, 0.5)
     want = in_rect(depth_order(to_arrays(model), cam, 0.5), (20, 10, 90, 100))
     assert 100 < len(want) < len(model)

@@ -225,6 +225,14 @@ def camera_to_json(camera) -> dict:
             "cy": camera.cy, "width": camera.width, "height": camera.height}
 
 
+def camera_from_json(data: dict):
+    """The camera `camera_to_json` wrote (e.g. a report's, to render its view headless)."""
+    from splat4d.cameras import Camera
+
+    return Camera(np.array(data["c2w"]), data["fx"], data["fy"], data["cx"], data["cy"], data["width"],
+                  data["height"])
+
+
 class ViewerApp:
     """Interactive viewer of one model at a time (see module doc). ``run()`` blocks until the window closes."""
 

@@ -83,6 +83,12 @@ def test_edits_select_delete_undo_and_restore():
     assert e.undo() and e.deleted.tolist() == [True] + [False] * 9  # Undo takes the restore back
     with pytest.raises(ValueError):
         e.select([0], "toggle")
+    e = Edits.of(6)
+    e.select([1, 2]), e.delete_selected(), e.restore_all()
+    e.select([1, 2, 3])
+    assert e.undo() and e.selected.tolist() == [False, False, False, True, False, False]  # deleted again: unselected
+    assert e.invert_selection(among=np.array([True, True, True, True, True, False])) == 2  # 0 and 4, not 5
+    e = Edits.of(10)
     for i in range(UNDO_LEVELS + 5):
         e.select([i % 10]), e.delete_selected(), e.restore_all()
     assert len(e.history) == UNDO_LEVELS
@@ -156,6 +162,7 @@ def test_app_does_not_drop_unsaved_deletions_at_the_first_open(app, tmp_path):
     deleted = app._editor.edits.num_deleted
     app._open(str(other))
     assert "not saved" in app.status and len(app.model) == 2000 and app._editor.edits.num_deleted == deleted
+    assert app._drops_unsaved_edits("close the window")  # a warning about opening does not cover closing
     app._open(str(other))  # the second time goes ahead
     assert len(app.model) == 500 and app._editor.edits.num_deleted == 0
     app.select_rect(CAM, 0.5, (0, 0, 64, 64))
@@ -164,9 +171,38 @@ def test_app_does_not_drop_unsaved_deletions_at_the_first_open(app, tmp_path):
     assert not app._drops_unsaved_edits("open the file")
 
 
+def test_app_keeps_its_model_and_edits_when_a_new_one_cannot_be_shown(app, tmp_path, monkeypatch):
+    """A model that loads but cannot be drawn (e.g. over this GPU's texture limits) leaves the app on the model it
+    showed, with its edits; opening a model never carries the overwrite tick over."""
+    from splat4d.errors import GLError
+
+    other = save_checkpoint(tmp_path / "other.safetensors", synthetic_model(500, seed=2))
+    app.select_rect(CAM, 0.5, (0, 0, 32, 64))
+    app.delete_selected()
+    app._editor.unsaved, app._editor.overwrite = False, True
+    deleted = app._editor.edits.deleted.copy()
+    set_model = app.renderer.set_model
+
+    def refuse_small(model, t=None, arrays=None):
+        if len(model) == 500:
+            raise GLError("too large for this GPU")
+        set_model(model, t, arrays)
+
+    monkeypatch.setattr(app.renderer, "set_model", refuse_small)
+    app._open(str(other))
+    assert "too large" in app.status and len(app.model) == 2000
+    assert np.array_equal(app._editor.edits.deleted, deleted) and len(app.renderer.model) == 2000 - deleted.sum()
+    assert app.select_rect(CAM, 0.5, (0, 0, 64, 64)) > 0  # indices still map onto what is shown
+    monkeypatch.setattr(app.renderer, "set_model", set_model)
+    app._open(str(other))
+    assert len(app.model) == 500 and not app._editor.overwrite
+
+
 def test_app_delete_from_inspect_repicks_the_pixel(app):
     """Delete in the Inspect tab removes the inspected Gaussian and inspects the same pixel again: the rest of the
     pixel's Gaussians are still there (and maybe more, reached once the deleted one no longer covers them)."""
+    app.select_rect(CAM, 0.5, (0, 0, 8, 64))  # a selection made before: it survives the delete
+    chosen = app._editor.edits.selected.copy()
     stack = app.inspect(CAM, 0.5, 32, 32)
     index = app._editor.shown_index
     before = {int(index[h.index]) for h in stack.hits}
@@ -177,7 +213,9 @@ def test_app_delete_from_inspect_repicks_the_pixel(app):
     index = app._editor.shown_index
     after = {int(index[h.index]) for h in app._inspect.stack.hits}
     assert top not in after and before - {top} <= after
+    assert np.array_equal(app._editor.edits.selected, chosen & ~app._editor.edits.deleted) and chosen.sum() > 0
     assert app._attempt(app._undo) and len(app.renderer.model) == 2000
     app.inspect(CAM, 0.5, 32, 32)
     app.select_inspected()
-    assert app._editor.edits.selected[top] and app._editor.edits.num_selected == 1
+    chosen[top] = True
+    assert np.array_equal(app._editor.edits.selected, chosen)  # added to what was selected

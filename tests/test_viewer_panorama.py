@@ -191,3 +191,27 @@ def test_tagging_a_fast_start_file_shifts_its_chunk_offsets(tmp_path):
     tagged = path.read_bytes()
     tag_equirectangular(path)
     assert path.read_bytes() == tagged
+
+    # a 'moov' at the end whose size says "to the end of the file" (0) gets its real size
+    late = tmp_path / "late.mp4"
+    with av.open(str(late), "w") as c:
+        stream = c.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 64, 32, "yuv420p"
+        for i in range(4):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(np.full((32, 64, 3), 40 * i, np.uint8),
+                                                                   format="rgb24")):
+                c.mux(packet)
+        for packet in stream.encode():
+            c.mux(packet)
+    data = bytearray(late.read_bytes())
+    kinds = top_level(late)
+    assert kinds[-1] == b"moov"
+    moov_at = data.rfind(b"moov") - 4
+    data[moov_at:moov_at + 4] = b"\0\0\0\0"
+    late.write_bytes(bytes(data))
+    before = decode(late)
+    tag_equirectangular(late)
+    assert spherical_projection(late) == "equirectangular"
+    assert int.from_bytes(late.read_bytes()[moov_at:moov_at + 4], "big") == len(late.read_bytes()) - moov_at
+    after = decode(late)
+    assert len(after) == 4 and all(np.array_equal(a, b) for a, b in zip(before, after))

@@ -167,8 +167,8 @@ class _Editor:
     overwrite: bool = False
     #: deletions made since the model was opened or last saved ...
     unsaved: bool = False
-    #: ... and whether the user was already told that opening another file or closing drops them
-    warned: bool = False
+    #: ... and the actions ("open the file", "close the window") the user was already told would drop them
+    warned: set = field(default_factory=set)
 
 
 @dataclass
@@ -318,16 +318,25 @@ class ViewerApp:
         t0, t1 = model.time_range
         start = self.options.time if (first_load and self.options.time is not None) else 0.5 * (t0 + t1)
         extent = model_extent(model)  # once: over a second for 1M Gaussians
-        self._crop = self._initial_crop(extent, self.options.crop if first_load else None)
-        self.source_name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
+        name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
         old = self._editor
-        # Save edited writes <name>_edited.safetensors unless the user typed a file
-        file = old.file if old.file != old.default_file else edited_name(self.source_name)
-        self._editor = _Editor(edits=Edits.of(len(model)), file=file, default_file=edited_name(self.source_name),
-                               overwrite=old.overwrite)
-        self.model, self.checkpoint, self._extent = model, ckpt, extent
+        # Save edited writes <name>_edited.safetensors unless the user typed a file; overwriting is asked anew
+        file = old.file if old.file != old.default_file else edited_name(name)
+        state = ("_crop", "_editor", "_measure", "model", "checkpoint", "_extent", "source_name")
+        before = {k: getattr(self, k, None) for k in state}
+        self._crop = self._initial_crop(extent, self.options.crop if first_load else None)
+        self._editor = _Editor(edits=Edits.of(len(model)), file=file, default_file=edited_name(name))
+        self.model, self.checkpoint, self._extent, self.source_name = model, ckpt, extent, name
         self._measure = _Measure()  # points on the previous model
-        shown = self._apply_edits(start)
+        try:
+            shown = self._apply_edits(start)
+        except Splat4DError:  # e.g. too large for this GPU: back to the model shown before, edits and all
+            if first_load:
+                raise
+            for k, v in before.items():
+                setattr(self, k, v)
+            self._apply_edits(self.playback.time)
+            raise
         self.framing = framing_of(*extent) if shown is model else frame_model(shown)
         if first_load:
             o = self.options
@@ -425,7 +434,8 @@ class ViewerApp:
     def _edited(self, what: str) -> None:
         """After a change of the deleted set: show the rest, and mark the edits unsaved."""
         ed = self._editor
-        ed.unsaved, ed.warned = True, False
+        ed.unsaved = True
+        ed.warned.clear()
         self._apply_edits(self.playback.time)
         self.report["selected"] = ed.edits.num_selected
         self.status = f"{what}; {ed.edits.num_deleted:,} deleted, {len(self.renderer.model):,} shown"
@@ -449,9 +459,10 @@ class ViewerApp:
             raise Splat4DError("Ctrl+click the model first: nothing is inspected")
         ed = self._editor
         pixel, camera = self._inspect.stack.pixel, self._inspect.camera
-        ed.edits.clear_selection()
-        ed.edits.select([ed.shown_index[hit.index]], "add")
+        kept = ed.edits.selected.copy()  # the user's selection survives (less the deleted Gaussian)
+        ed.edits.select([ed.shown_index[hit.index]], "replace")
         self.delete_selected()
+        ed.edits.selected = kept & ~ed.edits.deleted
         if camera is not None:
             status = self.status
             self.inspect(camera, self.playback.time, *pixel)
@@ -461,9 +472,9 @@ class ViewerApp:
         """True when `action` (opening, closing) would drop deletions not yet saved and the user has not yet been
         told: the status line tells them and the next attempt goes ahead."""
         ed = self._editor
-        if not ed.unsaved or ed.warned:
+        if not ed.unsaved or action in ed.warned:
             return False
-        ed.warned = True
+        ed.warned.add(action)
         self.status = (f"{ed.edits.num_deleted:,} deleted Gaussian(s) are not saved: Save edited in the Edit tab, "
                        f"or {action} again to drop them")
         return True
@@ -839,7 +850,7 @@ class ViewerApp:
                     self._attempt(lambda: self.measure(camera, t, x, y))
             elif io.key_shift and imgui.is_mouse_clicked(imgui.MouseButton_.left):
                 ed.drag, ed.drag_removes = [*cursor, *cursor], io.key_alt
-            elif imgui.is_mouse_down(imgui.MouseButton_.left) and not io.key_ctrl and (d.x or d.y):
+            elif imgui.is_mouse_down(imgui.MouseButton_.left) and not (io.key_ctrl or io.key_alt) and (d.x or d.y):
                 c.look(d.x, d.y) if self._fly else c.orbit(d.x, d.y)
                 self._path.playing = False
             if (imgui.is_mouse_down(imgui.MouseButton_.right) or imgui.is_mouse_down(imgui.MouseButton_.middle)) \
@@ -1081,7 +1092,9 @@ class ViewerApp:
             self._attempt(self.delete_selected)
         imgui.same_line()
         if imgui.button("Invert"):
-            edits.invert_selection()
+            shown = np.zeros(len(self.model), bool)
+            shown[ed.shown_index] = True
+            edits.invert_selection(among=shown)
         if imgui.is_item_hovered():
             imgui.set_tooltip("select every Gaussian not selected (e.g. select the object, invert, delete)")
         imgui.same_line()

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import warnings
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -34,7 +35,7 @@ import numpy as np
 from splat4d.errors import Splat4DError
 from splat4d.fileio import atomic_dir, atomic_path, check_writable
 
-from .spherical import TAGGABLE_SUFFIXES, tag_equirectangular
+from .spherical import TAGGABLE_SUFFIXES, SphericalTagError, tag_equirectangular
 
 IMAGE_SUFFIXES = (".png", ".exr")
 
@@ -261,7 +262,10 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
             finally:
                 writer.close()
             if spherical and path.suffix.lower() in TAGGABLE_SUFFIXES:
-                tag_equirectangular(tmp)
+                try:
+                    tag_equirectangular(tmp)
+                except SphericalTagError as exc:  # the render itself is good: keep it, untagged
+                    warnings.warn(f"{out}: written without the 360° video tag ({exc})", stacklevel=3)
     elif kind == "image":
         with atomic_path(path, force) as tmp:
             writer = SingleImageWriter(tmp, transparent, out)

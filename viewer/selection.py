@@ -112,9 +112,12 @@ class Edits:
     def clear_selection(self) -> None:
         self.selected[:] = False
 
-    def invert_selection(self) -> int:
-        """Select every Gaussian that is neither selected nor deleted (and unselect the others)."""
+    def invert_selection(self, among: np.ndarray | None = None) -> int:
+        """Select every Gaussian that is neither selected nor deleted (and unselect the others); with `among` (a
+        ``[N]`` bool mask, e.g. what the window shows), only those: the others stay unselected."""
         self.selected = ~self.selected & ~self.deleted
+        if among is not None:
+            self.selected &= among
         return self.num_selected
 
     def delete_selected(self) -> int:
@@ -131,6 +134,7 @@ class Edits:
         if not self.history:
             return False
         self.deleted = self.history.pop()
+        self.selected &= ~self.deleted  # a Gaussian deleted again cannot stay selected
         return True
 
     def restore_all(self) -> int:

@@ -94,29 +94,35 @@ def _video_trak(moov: bytearray) -> tuple[int, int, int]:
     raise SphericalTagError("no video track to tag")
 
 
-def _shift_chunk_offsets(moov: bytearray, start: int, end: int, delta: int) -> None:
-    """Add `delta` to every chunk offset (stco, co64) under ``moov[start:end]``, in place."""
+def _shift_chunk_offsets(moov: bytearray, start: int, end: int, delta: int, after: int) -> None:
+    """Add `delta` to every chunk offset (stco, co64) under ``moov[start:end]`` that points at or past file offset
+    `after` (the media behind ``moov``, which moves), in place."""
     for kind, s, p, e in _boxes(moov, start, end):
         if kind in _CONTAINERS:
-            _shift_chunk_offsets(moov, p, e, delta)
+            _shift_chunk_offsets(moov, p, e, delta, after)
         elif kind in (b"stco", b"co64"):
             count = struct.unpack_from(">I", moov, p + 4)[0]
             fmt, width = (">I", 4) if kind == b"stco" else (">Q", 8)
             for i in range(count):
                 at = p + 8 + i * width
-                value = struct.unpack_from(fmt, moov, at)[0] + delta
+                value = struct.unpack_from(fmt, moov, at)[0]
+                if value < after:
+                    continue
+                value += delta
                 if kind == b"stco" and value >= 1 << 32:
                     raise SphericalTagError("chunk offsets overflow 32 bits; cannot tag this file")
                 struct.pack_into(fmt, moov, at, value)
 
 
-def _grow(moov: bytearray, box_start: int, delta: int) -> None:
-    """Add `delta` to the 32-bit (or 64-bit) size field of the box at `box_start`."""
-    size = struct.unpack_from(">I", moov, box_start)[0]
-    if size == 1:
-        struct.pack_into(">Q", moov, box_start + 8, struct.unpack_from(">Q", moov, box_start + 8)[0] + delta)
-    else:
+def _grow(moov: bytearray, box_start: int, size: int, delta: int) -> None:
+    """Set the size field of the box at `box_start`, `size` bytes long, to ``size + delta`` (64-bit when it was; a
+    size of 0, "to the end of the file", becomes the real one)."""
+    if struct.unpack_from(">I", moov, box_start)[0] == 1:
+        struct.pack_into(">Q", moov, box_start + 8, size + delta)
+    elif size + delta < 1 << 32:
         struct.pack_into(">I", moov, box_start, size + delta)
+    else:
+        raise SphericalTagError("a box would outgrow its 32-bit size field")
 
 
 def tag_equirectangular(path: str | os.PathLike) -> None:
@@ -137,10 +143,10 @@ def tag_equirectangular(path: str | os.PathLike) -> None:
     box = struct.pack(">I4s", 8 + 16 + len(xml), b"uuid") + SPHERICAL_UUID + xml
     trak_start, _, trak_end = _video_trak(moov)
     if any(kind == b"mdat" and start > moov_start for kind, start, _ in top):  # media after moov: it moves
-        _shift_chunk_offsets(moov, _children(moov), len(moov), len(box))
+        _shift_chunk_offsets(moov, _children(moov), len(moov), len(box), moov_start + moov_size)
     moov[trak_end:trak_end] = box
-    _grow(moov, trak_start, len(box))
-    _grow(moov, 0, len(box))
+    _grow(moov, trak_start, trak_end - trak_start, len(box))
+    _grow(moov, 0, moov_size, len(box))
     tmp = path.with_name(path.name + ".tagging")
     try:
         with open(path, "rb") as src, open(tmp, "wb") as dst:

@@ -219,3 +219,20 @@ def test_app_delete_from_inspect_repicks_the_pixel(app):
     app.select_inspected()
     chosen[top] = True
     assert np.array_equal(app._editor.edits.selected, chosen)  # added to what was selected
+
+
+def test_a_new_model_of_the_same_size_is_sorted_anew():
+    """Two crop boxes (or edits) can show as many Gaussians, laid out alike: the renderer's cached order (used by
+    picks and rectangle selection) belongs to the Gaussians it was sorted for, not to their count."""
+    from splat4d.viewer.renderer import SplatRenderer, headless_context
+
+    cam = look_at((0.0, -6.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=40, width=64, height=48)
+    pair = swapping_pair()
+    moved = pair.select(torch.tensor([True, True]))
+    moved.means = pair.means + torch.tensor([0.0, 0.0, 0.5], dtype=pair.means.dtype)  # both higher up
+    r = SplatRenderer(headless_context(), pair)
+    before = r.sort(cam, 0.0).boxes[:, 1].copy()
+    r.set_model(moved, 0.0)
+    after = r.sort(cam, 0.0).boxes[:, 1]
+    assert np.all(after < before - 1.0)  # higher up: smaller rows
+    r.release()

@@ -3,8 +3,9 @@ the moderngl `SplatRenderer`.
 
 Controls: left drag orbits (looks around in fly mode), right or middle drag pans, the wheel zooms, W/A/S/D and
 Q/E fly, Space plays/pauses, R resets the view, F toggles fly mode, P takes a screenshot, Ctrl+click inspects the
-Gaussians under the cursor, Alt+click measures, Shift+drag selects Gaussians (Shift+Alt+drag unselects), Delete deletes the selection,
-Ctrl+Z undoes a deletion, Esc quits. Drop a model file on the window (or type its path in the panel) to open it.
+Gaussians under the cursor, Alt+click measures, Shift+drag selects Gaussians (Shift+Alt+drag unselects), Delete
+deletes the selection, Ctrl+Z undoes a deletion, Esc quits. Drop a model file on the window (or type its path in the
+panel) to open it.
 
 Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the newest finished back-to-front order
 and a new sort is requested whenever the camera, the time or the splat scale changed, so the UI never waits for a
@@ -46,10 +47,10 @@ from .controls import CameraController, Playback, Resolution, scaled_size
 from .output import write_png
 from .overlay import (CROP_COLOR, DATASET_COLOR, KEY_COLOR, MEASURE_COLOR, PATH_COLOR, PICK_COLOR, SELECTED_COLOR,
                       SELECTION_COLOR, Frustums, LineRenderer, box_segments, ellipsoid_segments, path_segments)
-from .pick import PixelHit, PixelStack, inspect_gaussian, peak_time
+from .pick import PixelHit, PixelStack, inspect_gaussian, peak_time, vector_text
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .selection import Edits, centres_at, in_rect, marker_segments, normalise_rect
-from .sorting import AsyncSorter, SortKey, SortResult, depth_order, view_key
+from .sorting import AsyncSorter, SortKey, SortResult, view_key
 from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudio
 
 
@@ -158,9 +159,12 @@ class _Editor:
     crop_cache: tuple | None = None
     #: the loaded model's `SplatArrays` once converted (each edit uploads a `SplatArrays.select` of them)
     full_arrays: object = None
-    #: the rectangle being dragged (x0, y0, x1, y1, window pixels), and whether it unselects (Shift+Alt)
+    #: the rectangle being dragged (x0, y0, x1, y1 in window coordinates, as the mouse gives them), and whether it
+    #: unselects (Shift+Alt)
     drag: list | None = None
     drag_removes: bool = False
+    #: (shown set, `Edits.revision`, time) -> centres of the selected Gaussians shown: remade when one changes
+    markers: tuple | None = None
     file: str = "edited.safetensors"
     #: what `file` was set to when the model was opened (a file the user typed instead is kept for the next model)
     default_file: str = "edited.safetensors"
@@ -402,7 +406,10 @@ class ViewerApp:
         """Select (mode "add" / "replace") or unselect ("remove") the shown Gaussians whose centre at `t` lies in
         `rect` (x0, y0, x1, y1: pixels of `camera`'s image; `selection.in_rect`); returns how many it caught."""
         ed = self._editor
-        order = depth_order(self.renderer.splats_at(t), camera, t, self.settings.splat_scale)
+        scale = self.settings.splat_scale
+        order = self._order  # the frame's own sort when it is of this view, else one now (kept for a pick)
+        if order is None or order.key != SortKey.of(camera, t, scale):
+            order = self.renderer.sort(camera, t, scale)
         caught = ed.shown_index[in_rect(order, rect)]
         ed.edits.select(caught, mode)
         self.report["selected"] = ed.edits.num_selected
@@ -424,8 +431,7 @@ class ViewerApp:
 
     def delete_selected(self) -> int:
         """Delete the selected Gaussians (Undo brings them back); returns how many."""
-        ed = self._editor
-        count = ed.edits.delete_selected()
+        count = self._editor.edits.delete_selected()
         if not count:
             raise Splat4DError("nothing is selected: Shift+drag over the model, or Select in the Inspect tab")
         self._edited(f"deleted {count:,} Gaussian(s)")
@@ -459,10 +465,8 @@ class ViewerApp:
             raise Splat4DError("Ctrl+click the model first: nothing is inspected")
         ed = self._editor
         pixel, camera = self._inspect.stack.pixel, self._inspect.camera
-        kept = ed.edits.selected.copy()  # the user's selection survives (less the deleted Gaussian)
-        ed.edits.select([ed.shown_index[hit.index]], "replace")
-        self.delete_selected()
-        ed.edits.selected = kept & ~ed.edits.deleted
+        ed.edits.delete([ed.shown_index[hit.index]])  # the rest of the selection stays
+        self._edited("deleted 1 Gaussian")
         if camera is not None:
             status = self.status
             self.inspect(camera, self.playback.time, *pixel)
@@ -509,8 +513,7 @@ class ViewerApp:
             m.points, m.pixels = [], []
         m.points.append(point)
         m.pixels.append((x, y))
-        where = "(" + ", ".join(f"{v:.4g}" for v in point) + ")"
-        self.status = f"measure: point {len(m.points)} at {where}" + \
+        self.status = f"measure: point {len(m.points)} at {vector_text(point)}" + \
             (f"; distance {m.distance:.4g}" if m.distance is not None else "; Alt+click the second point")
         self.report["measured"] = {"points": [p.tolist() for p in m.points], "pixels": [list(p) for p in m.pixels],
                                    "distance": m.distance, "time": t, "camera": camera_to_json(camera)}
@@ -545,18 +548,17 @@ class ViewerApp:
         ed, ckpt, n = self._editor, self.checkpoint, len(self.model)
         box = self._crop.shown
         in_box = self._in_box(box)
-        keep = in_box & ~ed.edits.deleted
+        model = self.renderer.model  # `_apply_edits` made it: the box's Gaussians less the deleted ones
         deleted = int(np.count_nonzero(in_box & ed.edits.deleted))
         if box is None and not deleted:
             raise Splat4DError("nothing to save: turn on 'crop to box' or delete Gaussians first")
-        if not keep.any():
+        if not len(model):
             raise Splat4DError("the edits leave no Gaussians to save")
         provenance = dict(ckpt.provenance or {})
         if box is not None:
             provenance["crop"] = box.provenance(int(in_box.sum()), n)
         if deleted:
-            provenance["deleted"] = {"count": deleted, "kept": int(keep.sum()), "of": n}
-        model = self.model.select(torch.from_numpy(keep))
+            provenance["deleted"] = {"count": deleted, "kept": len(model), "of": n}
         save_checkpoint(ed.file, model, background=ckpt.background, provenance=provenance,
                         training=ckpt.training, force=ed.overwrite)
         ed.unsaved = False
@@ -759,12 +761,12 @@ class ViewerApp:
     def _selection_markers(self, camera) -> np.ndarray:
         """Crosses (`selection.marker_segments`) at the centres of the selected Gaussians that are shown, at the
         displayed time."""
-        ed = self._editor
-        if not ed.edits.selected.any():
-            return np.zeros((0, 2, 3))
-        shown = np.flatnonzero(ed.edits.selected[ed.shown_index])
-        t = self.playback.time
-        return marker_segments(centres_at(self.renderer.splats_at(t), t, shown), camera)
+        ed, t = self._editor, self.playback.time
+        key = (self._generation, ed.edits.revision, t)
+        if ed.markers is None or ed.markers[0] != key:  # not every frame: a scan of the whole selection mask
+            shown = np.flatnonzero(ed.edits.selected[ed.shown_index])
+            ed.markers = (key, centres_at(self.renderer.splats_at(t), t, shown))
+        return marker_segments(ed.markers[1], camera)
 
     def _overlay_geometry(self, width: int, height: int, depth: float):
         """(path polyline, `Frustums` of the path keys and dataset cameras), remade only when what they show
@@ -827,28 +829,27 @@ class ViewerApp:
         c = self.controller
         width, height = glfw.get_framebuffer_size(self._window)
         win_w, win_h = glfw.get_window_size(self._window)
-        # cursor in window coordinates -> framebuffer pixels (they differ on high-DPI screens)
-        cursor = (io.mouse_pos.x * width / max(win_w, 1), io.mouse_pos.y * height / max(win_h, 1))
+        # window coordinates -> framebuffer pixels (they differ on high-DPI screens)
+        kx, ky = width / max(win_w, 1), height / max(win_h, 1)
+        cursor = (io.mouse_pos.x, io.mouse_pos.y)
+        clicked = imgui.is_mouse_clicked(imgui.MouseButton_.left)
         ed = self._editor
         if ed.drag is not None:  # a selection rectangle: follows the cursor until the button is released
             ed.drag[2:] = cursor
             if not imgui.is_mouse_down(imgui.MouseButton_.left):
-                rect, ed.drag = ed.drag, None
+                x0, y0, x1, y1 = ed.drag
+                rect, ed.drag = (x0 * kx, y0 * ky, x1 * kx, y1 * ky), None
                 camera, t = self._current_view(width, height)
                 self._attempt(lambda: self.select_rect(camera, t, rect, "remove" if ed.drag_removes else "add"))
         elif not io.want_capture_mouse:
             d = io.mouse_delta
-            if io.key_ctrl and imgui.is_mouse_clicked(imgui.MouseButton_.left):
-                x, y = int(cursor[0]), int(cursor[1])
+            tool = self.inspect if io.key_ctrl else self.measure if io.key_alt and not io.key_shift else None
+            x, y = int(cursor[0] * kx), int(cursor[1] * ky)
+            if clicked and tool is not None:  # Ctrl+click inspects, Alt+click measures the pixel under the cursor
                 if 0 <= x < width and 0 <= y < height:
                     camera, t = self._current_view(width, height)
-                    self._attempt(lambda: self.inspect(camera, t, x, y))
-            elif io.key_alt and not io.key_shift and imgui.is_mouse_clicked(imgui.MouseButton_.left):
-                x, y = int(cursor[0]), int(cursor[1])
-                if 0 <= x < width and 0 <= y < height:
-                    camera, t = self._current_view(width, height)
-                    self._attempt(lambda: self.measure(camera, t, x, y))
-            elif io.key_shift and imgui.is_mouse_clicked(imgui.MouseButton_.left):
+                    self._attempt(lambda: tool(camera, t, x, y))
+            elif clicked and io.key_shift:
                 ed.drag, ed.drag_removes = [*cursor, *cursor], io.key_alt
             elif imgui.is_mouse_down(imgui.MouseButton_.left) and not (io.key_ctrl or io.key_alt) and (d.x or d.y):
                 c.look(d.x, d.y) if self._fly else c.orbit(d.x, d.y)
@@ -934,15 +935,10 @@ class ViewerApp:
             imgui.end_tab_bar()
         self._apply_crop_edits()
         ed = self._editor
-        if ed.drag is not None:  # the selection rectangle, in window coordinates
-            import glfw
-
-            width, height = glfw.get_framebuffer_size(self._window)
-            win_w, win_h = glfw.get_window_size(self._window)
-            kx, ky = win_w / max(width, 1), win_h / max(height, 1)
+        if ed.drag is not None:  # the selection rectangle (window coordinates, as imgui draws)
             x0, y0, x1, y1 = normalise_rect(*ed.drag)
             r, g, b = SELECTION_COLOR
-            imgui.get_foreground_draw_list().add_rect((x0 * kx, y0 * ky), (x1 * kx, y1 * ky),
+            imgui.get_foreground_draw_list().add_rect((x0, y0), (x1, y1),
                                                       imgui.IM_COL32(int(255 * r), int(255 * g), int(255 * b), 255),
                                                       0.0, 1.5)
 
@@ -1132,7 +1128,7 @@ class ViewerApp:
             imgui.text_wrapped("Alt+click two points of the model: the distance between the surfaces there")
             return
         for i, p in enumerate(m.points):
-            imgui.text(f"point {i + 1}: (" + ", ".join(f"{v:.4g}" for v in p) + ")")
+            imgui.text(f"point {i + 1}: {vector_text(p)}")
         imgui.text(f"distance {m.distance:.4g}" if m.distance is not None else "Alt+click the second point")
         if imgui.button("Clear##measure"):
             self._measure = _Measure()

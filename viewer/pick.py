@@ -126,10 +126,10 @@ def inspect_gaussian(model, index: int, t: float) -> tuple[list[tuple[str, str]]
     with torch.no_grad():
         g = one.slice(float(t))
         rows = [("index", f"{int(index):,} of {len(model):,}"),
-                ("position", _vec(g.means[0])),
-                ("velocity", _vec(g.velocities[0])),
+                ("position", vector_text(g.means[0])),
+                ("velocity", vector_text(g.velocities[0])),
                 ("speed", f"{float(g.velocities[0].norm()):.4g}"),
-                ("std-devs", _vec(torch.linalg.eigvalsh(g.covariances[0].double()).clamp_min(0).sqrt().flip(0))),
+                ("std-devs", vector_text(torch.linalg.eigvalsh(g.covariances[0].double()).clamp_min(0).sqrt().flip(0))),
                 ("opacity at t", f"{float(g.opacities[0]):.3f}" + ("" if bool(g.visible[0]) else "  (not drawn)"))]
         if isinstance(one, Gaussians4D):
             _, _, var_t = condition_on_time(one.covariance_4d())
@@ -151,5 +151,6 @@ def peak_time(model, index: int) -> float:
     return float(model.times[int(model.opacities[:, int(index)].argmax())])
 
 
-def _vec(v) -> str:
+def vector_text(v) -> str:
+    """A vector as '(x, y, z)' with 4 significant digits (the panel's and the status line's way)."""
     return "(" + ", ".join(f"{float(x):.4g}" for x in v) + ")"

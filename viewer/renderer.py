@@ -237,6 +237,7 @@ class SplatRenderer:
             arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
         self._model = model
         self._typical_speed = None  # the speed mode's colour map top, made on first use (`typical_speed`)
+        self._order = None  # an order of other Gaussians, even when they are as many (another crop box)
         self._upload(arrays)
 
     def _default_value_range(self, mode: str, order: SortResult, splats) -> tuple[float, float]:
@@ -299,7 +300,6 @@ class SplatRenderer:
                 prog, [(self._attr_buf, "4f 4f 4f 4f", "a_mean_t", "a_motion", "a_cov_a", "a_cov_b")],
                 index_buffer=self._ibo, index_element_size=4)
             self._pre_prog = prog
-            self._order = None
         self._gpu_n = n
         self.splats = arrays
 

@@ -79,11 +79,13 @@ class Edits:
     Attributes:
         deleted, selected: ``[N]`` bool masks over the loaded model; a deleted Gaussian is never selected.
         history: earlier `deleted` masks, the newest last (at most `UNDO_LEVELS`).
+        revision: counts the changes of either mask (what is derived from them is remade when it moves on).
     """
 
     deleted: np.ndarray
     selected: np.ndarray
     history: list = field(default_factory=list)
+    revision: int = 0
 
     @classmethod
     def of(cls, n: int) -> "Edits":
@@ -107,10 +109,12 @@ class Edits:
             self.selected[:] = False
         self.selected[idx] = mode != "remove"
         self.selected &= ~self.deleted
+        self.revision += 1
         return self.num_selected
 
     def clear_selection(self) -> None:
         self.selected[:] = False
+        self.revision += 1
 
     def invert_selection(self, among: np.ndarray | None = None) -> int:
         """Select every Gaussian that is neither selected nor deleted (and unselect the others); with `among` (a
@@ -118,16 +122,25 @@ class Edits:
         self.selected = ~self.selected & ~self.deleted
         if among is not None:
             self.selected &= among
+        self.revision += 1
         return self.num_selected
+
+    def delete(self, indices: np.ndarray) -> int:
+        """Delete Gaussians `indices` (one Undo step; the rest of the selection stays); returns how many were not
+        deleted yet."""
+        fresh = np.zeros_like(self.deleted)
+        fresh[np.asarray(indices, np.int64)] = True
+        fresh &= ~self.deleted
+        count = int(fresh.sum())
+        if count:
+            self._remember()
+            self.deleted |= fresh
+            self.selected &= ~fresh
+        return count
 
     def delete_selected(self) -> int:
         """Delete the selection (one Undo step); returns how many were deleted."""
-        count = self.num_selected
-        if count:
-            self._remember()
-            self.deleted |= self.selected
-            self.selected[:] = False
-        return count
+        return self.delete(np.flatnonzero(self.selected))
 
     def undo(self) -> bool:
         """Restore the Gaussians of the last deletion (they come back unselected). False when there is none."""
@@ -135,6 +148,7 @@ class Edits:
             return False
         self.deleted = self.history.pop()
         self.selected &= ~self.deleted  # a Gaussian deleted again cannot stay selected
+        self.revision += 1
         return True
 
     def restore_all(self) -> int:
@@ -146,5 +160,7 @@ class Edits:
         return count
 
     def _remember(self) -> None:
+        """Before a change of `deleted`: keep it for Undo."""
         self.history.append(self.deleted.copy())
         del self.history[:-UNDO_LEVELS]
+        self.revision += 1

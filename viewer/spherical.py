@@ -40,39 +40,52 @@ class SphericalTagError(Splat4DError):
     """A file whose box structure cannot be tagged (not ISO-BMFF / QuickTime, or no video track)."""
 
 
+def _header(head: bytes | bytearray, at: int, pos: int, end: int) -> tuple[bytes, int, int]:
+    """(type, header length, size) of the box whose header is at ``head[at:]`` and which starts at offset `pos` of a
+    range ending at `end` (size 1: a 64-bit size follows; size 0: the box runs to `end`)."""
+    size, kind = struct.unpack_from(">I4s", head, at)
+    header = 8
+    if size == 1:
+        size, header = struct.unpack_from(">Q", head, at + 8)[0], 16
+    elif size == 0:
+        size = end - pos
+    if size < header or pos + size > end:
+        raise SphericalTagError(f"broken {kind!r} box at byte {pos}")
+    return kind, header, size
+
+
 def _boxes(data: bytes | bytearray, start: int, end: int):
     """(type, box start, payload start, box end) of the boxes in ``data[start:end]``."""
     pos = start
     while pos + 8 <= end:
-        size, kind = struct.unpack_from(">I4s", data, pos)
-        header = 8
-        if size == 1:
-            size, header = struct.unpack_from(">Q", data, pos + 8)[0], 16
-        elif size == 0:
-            size = end - pos
-        if size < header or pos + size > end:
-            raise SphericalTagError(f"broken {kind!r} box at byte {pos}")
+        kind, header, size = _header(data, pos, pos, end)
         yield kind, pos, pos + header, pos + size
         pos += size
 
 
-def _top_level(f) -> list[tuple[bytes, int, int]]:
-    """(type, start, size) of a file's top-level boxes, read header by header (the media data is not loaded)."""
+def _child(data: bytes | bytearray, start: int, end: int, kind: bytes) -> tuple[int, int] | None:
+    """(payload start, end) of the first `kind` box in ``data[start:end]``, or None."""
+    return next(((p, e) for k, _, p, e in _boxes(data, start, end) if k == kind), None)
+
+
+def _find_moov(f) -> tuple[list[tuple[bytes, int, int]], int, bytearray] | None:
+    """(top-level boxes as (type, start, size), where ``moov`` starts, its bytes) of an open file, read header by
+    header (the media data is not loaded); None when it has no ``moov``, an error when it has several."""
     f.seek(0, os.SEEK_END)
     total = f.tell()
-    out, pos = [], 0
+    top, pos = [], 0
     while pos + 8 <= total:
         f.seek(pos)
-        size, kind = struct.unpack(">I4s", f.read(8))
-        if size == 1:
-            size = struct.unpack(">Q", f.read(8))[0]
-        elif size == 0:
-            size = total - pos
-        if size < 8 or pos + size > total:
-            raise SphericalTagError(f"broken {kind!r} box at byte {pos}")
-        out.append((kind, pos, size))
+        kind, _, size = _header(f.read(16).ljust(16, b"\0"), 0, pos, total)
+        top.append((kind, pos, size))
         pos += size
-    return out
+    moovs = [(start, size) for kind, start, size in top if kind == b"moov"]
+    if len(moovs) > 1:
+        raise SphericalTagError("more than one 'moov' box")
+    if not moovs:
+        return None
+    f.seek(moovs[0][0])
+    return top, moovs[0][0], bytearray(f.read(moovs[0][1]))
 
 
 def _children(moov: bytes | bytearray) -> int:
@@ -83,14 +96,10 @@ def _children(moov: bytes | bytearray) -> int:
 def _video_trak(moov: bytearray) -> tuple[int, int, int]:
     """(start, payload start, end) in `moov` of the first track whose handler is 'vide'."""
     for kind, start, payload, end in _boxes(moov, _children(moov), len(moov)):
-        if kind != b"trak":
-            continue
-        for k, s, p, e in _boxes(moov, payload, end):
-            if k != b"mdia":
-                continue
-            for k2, s2, p2, e2 in _boxes(moov, p, e):
-                if k2 == b"hdlr" and moov[p2 + 8:p2 + 12] == b"vide":  # version/flags, pre_defined, handler type
-                    return start, payload, end
+        mdia = _child(moov, payload, end, b"mdia") if kind == b"trak" else None
+        hdlr = _child(moov, *mdia, b"hdlr") if mdia else None
+        if hdlr and moov[hdlr[0] + 8:hdlr[0] + 12] == b"vide":  # version/flags, pre_defined, handler type
+            return start, payload, end
     raise SphericalTagError("no video track to tag")
 
 
@@ -130,13 +139,11 @@ def tag_equirectangular(path: str | os.PathLike) -> None:
     in place. A file already tagged is left as it is."""
     path = Path(path)
     with open(path, "rb") as f:
-        top = _top_level(f)
-        moovs = [(start, size) for kind, start, size in top if kind == b"moov"]
-        if len(moovs) != 1:
-            raise SphericalTagError(f"{path}: not an MP4/QuickTime file with one 'moov' box")
-        moov_start, moov_size = moovs[0]
-        f.seek(moov_start)
-        moov = bytearray(f.read(moov_size))
+        found = _find_moov(f)
+    if found is None:
+        raise SphericalTagError(f"{path}: not an MP4/QuickTime file (no 'moov' box)")
+    top, moov_start, moov = found
+    moov_size = len(moov)
     if read_spherical_xml(moov) is not None:
         return
     xml = SPHERICAL_XML.encode()
@@ -171,11 +178,10 @@ def _copy(src, dst, count: int) -> None:
 
 def read_spherical_xml(moov: bytes | bytearray) -> str | None:
     """The Spherical Video V1 XML of the first track of ``moov`` box bytes that has one, else None."""
-    for kind, _, payload, end in _boxes(moov, _children(moov), len(moov)):
-        if kind != b"trak":
-            continue
-        for k, _, p, e in _boxes(moov, payload, end):
-            if k == b"uuid" and moov[p:p + 16] == SPHERICAL_UUID:
+    traks = [(p, e) for kind, _, p, e in _boxes(moov, _children(moov), len(moov)) if kind == b"trak"]
+    for start, end in traks:
+        for kind, _, p, e in _boxes(moov, start, end):
+            if kind == b"uuid" and moov[p:p + 16] == SPHERICAL_UUID:
                 return bytes(moov[p + 16:e]).decode("utf-8", "replace")
     return None
 
@@ -183,12 +189,9 @@ def read_spherical_xml(moov: bytes | bytearray) -> str | None:
 def spherical_projection(path: str | os.PathLike) -> str | None:
     """The projection a file's spherical tag declares ("equirectangular"), or None when it has no tag."""
     with open(path, "rb") as f:
-        for kind, start, size in _top_level(f):
-            if kind == b"moov":
-                f.seek(start)
-                xml = read_spherical_xml(f.read(size))
-                if xml is None:
-                    return None
-                found = re.search(r"<GSpherical:ProjectionType>([^<]*)<", xml)
-                return found.group(1) if found else "equirectangular"  # V1: equirectangular unless said otherwise
-    return None
+        found = _find_moov(f)
+    xml = read_spherical_xml(found[2]) if found is not None else None
+    if xml is None:
+        return None
+    projection = re.search(r"<GSpherical:ProjectionType>([^<]*)<", xml)
+    return projection.group(1) if projection else "equirectangular"  # V1: equirectangular unless said otherwise

@@ -15,6 +15,9 @@ time / near / frustum culls), ``drawn`` (after skipping Gaussians hidden behind 
 The two are measured interleaved, frame by frame (GL frame i, then the rasterizer on the same view), so that both
 see the same load on this shared machine: the per-frame ratio is the comparable number, the absolute times drift
 by 2x and more between runs.
+
+``--max-std-dev`` / ``--max-screen-radius`` measure the viewer with those footprint caps (the performance guards of
+`splat4d.viewer.sorting.Footprint`; recorded in each row), against the uncapped rasterizer as always.
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ def build_case(name: str):
     return synthetic(n), (0.0, 0.0, 0.0), 1.5, 60.0
 
 
-def measure(model, center, distance, fov, size, frames: int, composite: str) -> dict:
+def measure(model, center, distance, fov, size, frames: int, composite: str, caps: dict) -> dict:
     import torch
 
     from splat4d.cameras import orbit
@@ -58,7 +61,7 @@ def measure(model, center, distance, fov, size, frames: int, composite: str) -> 
     views = [(orbit(20, 30 + 2 * i, distance, fov, w, h, "z", center), t0 + (t1 - t0) * (0.3 + 0.013 * i))
              for i in range(frames + 1)]
     renderer = SplatRenderer(headless_context(), model)
-    settings = RenderSettings(background=(1.0, 1.0, 1.0), composite=composite)
+    settings = RenderSettings(background=(1.0, 1.0, 1.0), composite=composite, **caps)
     total, sort, draw, visible, drawn, raster = [], [], [], [], [], []
     with torch.no_grad():
         renderer.render(*views[0], settings)  # warm-up: shader compile, numba load, targets
@@ -82,7 +85,7 @@ def measure(model, center, distance, fov, size, frames: int, composite: str) -> 
             "raster_fwd_ms": round(statistics.median(raster), 2), "speedup": round(statistics.median(ratios), 2),
             "speedup_range": [round(min(ratios), 2), round(max(ratios), 2)],
             "fps": round(1e3 / frame_ms, 1), "visible": int(statistics.median(visible)),
-            "drawn": int(statistics.median(drawn)), "frames": frames, "composite": composite}
+            "drawn": int(statistics.median(drawn)), "frames": frames, "composite": composite, **caps}
 
 
 def main() -> None:
@@ -93,9 +96,12 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None, help="frames per case, each drawn by GL and by the "
                                                               "rasterizer (default 15 / 9 / 5 by size of model)")
     ap.add_argument("--composite", default="front-to-back", choices=("front-to-back", "back-to-front"))
-    args = ap.parse_args()
+    from splat4d.viewer.options import add_footprint_args, parse_size
 
-    from splat4d.viewer.options import parse_size
+    add_footprint_args(ap)  # the GL side only: the rasterizer draws every splat out to its cut-off
+    args = ap.parse_args()
+    caps = {k: getattr(args, k) for k in ("max_std_dev", "max_screen_radius") if getattr(args, k) is not None}
+
     from splat4d.viewer.renderer import headless_context
 
     ctx = headless_context()
@@ -106,7 +112,7 @@ def main() -> None:
         model, center, distance, fov = build_case(name.strip().lower())
         frames = args.frames or {"sample": 15, "200k": 9}.get(name, 5)
         for size in sizes:
-            row = {"case": name, **measure(model, center, distance, fov, size, frames, args.composite)}
+            row = {"case": name, **measure(model, center, distance, fov, size, frames, args.composite, caps)}
             rows.append(row)
             print(json.dumps(row), flush=True)
         del model

@@ -11,11 +11,12 @@
 //   * SPLAT_QUADS: one instanced quad spanning the Gaussian's principal axes out to the cut-off radius;
 //   * SPLAT_OVERLAY: the same quads for the outline and centre modes (only this variant has their code: llvmpipe
 //     runs the branches of uniform ifs as masked code, at a cost on every fragment).
-// Either way the footprint reaches the radius where alpha falls to ALPHA_THRESHOLD, so every pixel the reference
-// rasterizer would touch is covered. uv is the offset from the centre in std-devs (Mahalanobis coordinates:
-// interpolated across a quad, which is exact for a linear map, or mapped back from the pixel for a point):
-// power = -|uv|^2 / 2. Fragments outside the Gaussian's tile rectangle (i_rect) get alpha 0, as in the reference
-// rasterizer.
+// Either way the footprint reaches the pre-pass's radius: where alpha falls to ALPHA_THRESHOLD, so every pixel
+// the reference rasterizer would touch is covered, unless a footprint cap (sorting.Footprint) cut it shorter.
+// uv is the offset from the centre in std-devs (Mahalanobis coordinates: interpolated across a quad, which is
+// exact for a linear map, or mapped back from the pixel for a point): power = -|uv|^2 / 2. Fragments past the
+// radius (|uv|^2 > radius^2: alpha < ALPHA_THRESHOLD when uncapped) or outside the Gaussian's tile rectangle
+// (i_rect) get alpha 0, as in the reference rasterizer.
 // Output is premultiplied (rgb * alpha, alpha) into a float target cleared to 0, blended either back to front
 // with (ONE, ONE_MINUS_SRC_ALPHA) or front to back with (ONE_MINUS_DST_ALPHA, ONE): both give
 // rgb = sum c_i a_i T_i and alpha = 1 - prod(1 - a_i), the reference compositing. Splats sit at depth 0.5 so
@@ -50,6 +51,7 @@ out vec2 v_uv;
 #endif
 flat out vec4 v_color;
 flat out vec4 v_rect;
+flat out float v_radius2;   // squared footprint radius (std-devs^2)
 
 void main() {
     if (i_geom.z <= 0.0) {
@@ -90,6 +92,7 @@ void main() {
     v_uv = uv;
 #endif
     v_color = i_color;
+    v_radius2 = i_geom.z * i_geom.z;
     v_rect = u_mode == MODE_OUTLINES || u_mode == MODE_CENTRES ? vec4(-1e30, -1e30, 1e30, 1e30) : i_rect;
 }
 
@@ -106,6 +109,7 @@ in vec2 v_uv;
 #endif
 flat in vec4 v_color;
 flat in vec4 v_rect;
+flat in float v_radius2;
 
 out vec4 f_color;
 
@@ -133,8 +137,8 @@ void main() {
 #endif
     bool inside = all(greaterThanEqual(pixel, v_rect.xy)) && all(lessThan(pixel, v_rect.zw));
     float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
-    // below the cut-off the fragment adds exactly nothing (cheaper than discard on software rasterizers)
-    alpha = (alpha < ALPHA_THRESHOLD || !inside) ? 0.0 : alpha;
+    // past the radius the fragment adds exactly nothing (cheaper than discard on software rasterizers)
+    alpha = (r2 > v_radius2 || !inside) ? 0.0 : alpha;
     f_color = vec4(v_color.rgb * alpha, alpha);
 }
 

@@ -9,7 +9,7 @@
 // projection (OpenCV camera, Jacobian at x/z, y/z clamped to the image plus (FRUSTUM_CLAMP - 1) tan_fov on each
 // side, + EPS2D px^2, NEAR_PLANE cull), and its footprint rule: the tiles (TILE_SIZE) of the square box of radius
 // ceil(RADIUS_SIGMAS sqrt(lambda_max)) (EIGEN_FLOOR under the discriminant), intersected with the alpha >=
-// ALPHA_THRESHOLD ellipse.
+// ALPHA_THRESHOLD ellipse, optionally capped (splat4d.viewer.sorting.Footprint).
 //
 // Compile-time defines (splat4d.viewer.renderer): SH_DEGREE, SH_DEGREE_T, SH_TEXELS (RGBA texels per Gaussian),
 // SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE. Rendering constants come from splat4d.constants.
@@ -29,13 +29,14 @@ uniform vec2 u_size;        // image width, height (pixels)
 uniform float u_time;       // model time t
 uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time terms)
 uniform float u_scale;      // splat scale (multiplies every std-dev)
+uniform vec2 u_max_radius;  // footprint caps: std-devs, pixels along the major axis (sorting.footprint_caps)
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
 uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|,
                             // 3 the visible time span (splat4d.covariance.visible_span), at most u_duration,
                             // 4 the temporal marginal at t (the factor on the opacity, in (TEMPORAL_CULL, 1])
 
-out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled), depth z
+out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled; capped), depth z
 out vec4 o_axes;   // 2D principal axes scaled by their std-devs (pixels): axis 1 xy, axis 2 xy
 out vec4 o_color;  // rgb (the value of a value mode, u_value, in all three), opacity at t
 out vec4 o_rect;   // pixels the reference rasterizer may touch: x0, y0, x1, y1 (tile-aligned, end exclusive)
@@ -158,6 +159,8 @@ void main() {
 
     // footprint: alpha = o exp(-r^2 / 2) >= ALPHA_THRESHOLD exactly inside r^2 = 2 ln(o / ALPHA_THRESHOLD)
     float radius = sqrt(2.0 * log(opacity / ALPHA_THRESHOLD));
+    // the footprint caps (off: 1e30), as sorting._depth_key: std-devs, then pixels along the major axis
+    radius = min(radius, min(u_max_radius.x, u_max_radius.y / sqrt(l1)));
     vec2 centre = vec2(fx * p.x * iz + cx, fy * p.y * iz + cy);
     // the reference's square box (radius in whole pixels) and the tiles it touches
     float box = ceil(RADIUS_SIGMAS * sqrt(mid + sqrt(max(EIGEN_FLOOR, mid * mid - det))));

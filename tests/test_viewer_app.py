@@ -86,7 +86,9 @@ def headless_of(report: dict, model) -> np.ndarray:
     c = shot["camera"]
     cam = camera_from_json(c)
     img = render_image(model, cam, shot["time"], RenderSettings(mode=shot["mode"], background=shot["background"],
-                                                                splat_scale=shot["splat_scale"]))
+                                                                splat_scale=shot["splat_scale"],
+                                                                max_std_dev=shot["max_std_dev"],
+                                                                max_screen_radius=shot["max_screen_radius"]))
     return np.round(np.clip(img[..., :3], 0, 1) * 255) / 255
 
 
@@ -112,6 +114,23 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
     background = np.all(img > 0.99, axis=-1)
     assert 0.02 < (~background).mean() < 0.9 and img.std() > 0.05  # neither empty nor all splat
     assert psnr(img, headless_of(report, model)) >= 40.0
+
+
+def test_app_draws_with_the_footprint_caps_like_headless(display, tmp_path):
+    """``view --max-std-dev --max-screen-radius``: the window draws the capped splats (its screenshot is the
+    headless render with the same caps, and not the uncapped one)."""
+    model = load_checkpoint(trained_checkpoint("spinner")).model
+    shot, report_path = tmp_path / "capped.png", tmp_path / "report.json"
+    proc = run_view(display, "--size", "120x90", "--exit-after", "3", "--paused", "--time", "0.25",
+                    "--max-std-dev", "1.5", "--max-screen-radius", "0.04", "--screenshot", str(shot),
+                    "--report", str(report_path))
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(report_path.read_text())
+    assert (report["screenshot"]["max_std_dev"], report["screenshot"]["max_screen_radius"]) == (1.5, 0.04)
+    img = read_shot(shot)
+    same = psnr(img, headless_of(report, model))
+    uncapped = dict(report["screenshot"], max_std_dev=None, max_screen_radius=None)
+    assert same >= 40.0 and psnr(img, headless_of({"screenshot": uncapped}, model)) < 38.0  # below "the same image"
 
 
 def test_app_opens_the_bundled_sample_paused_in_depth_view_and_needs_a_display(display, files, tmp_path):

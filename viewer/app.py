@@ -29,6 +29,7 @@ surfaces seen at two pixels (`PixelStack.surface_depth`, unprojected).
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import re
 import time
@@ -406,10 +407,10 @@ class ViewerApp:
         """Select (mode "add" / "replace") or unselect ("remove") the shown Gaussians whose centre at `t` lies in
         `rect` (x0, y0, x1, y1: pixels of `camera`'s image; `selection.in_rect`); returns how many it caught."""
         ed = self._editor
-        scale = self.settings.splat_scale
+        footprint = self.settings.footprint
         order = self._order  # the frame's own sort when it is of this view, else one now (kept for a pick)
-        if order is None or order.key != SortKey.of(camera, t, scale):
-            order = self.renderer.sort(camera, t, scale)
+        if order is None or order.key != SortKey.of(camera, t, footprint):
+            order = self.renderer.sort(camera, t, footprint)
         caught = ed.shown_index[in_rect(order, rect)]
         ed.edits.select(caught, mode)
         self.report["selected"] = ed.edits.num_selected
@@ -711,9 +712,9 @@ class ViewerApp:
             camera = window_camera.resized(*scaled_size(width, height, scale))
         s = self.settings
         splats = self.renderer.splats_at(t)
-        key = SortKey.of(camera, t, s.splat_scale)
+        key = SortKey.of(camera, t, s.footprint)
         if self._requested != (self._generation, key):
-            self.sorter.request(splats, camera, t, s.splat_scale, tag=self._generation)
+            self.sorter.request(splats, camera, t, s.footprint, tag=self._generation)
             self._requested = (self._generation, key)
         self._take_sort_result(self.sorter.poll())
         if self._order is None or screenshot:  # first frame of a model, or a screenshot: wait for this view
@@ -810,7 +811,9 @@ class ViewerApp:
             return
         self.report["screenshot"] = {"path": str(target), "camera": camera_to_json(camera), "time": t,
                                      "background": list(self.settings.background), "mode": self.settings.mode,
-                                     "splat_scale": self.settings.splat_scale, "sh_degree": self.settings.sh_degree}
+                                     "splat_scale": self.settings.splat_scale, "sh_degree": self.settings.sh_degree,
+                                     "max_std_dev": self.settings.max_std_dev,
+                                     "max_screen_radius": self.settings.max_screen_radius}
 
     def _next_screenshot_name(self) -> str:
         folder = Path(self.options.screenshot_dir)
@@ -983,6 +986,7 @@ class ViewerApp:
                 "fade": "temporal opacity factor: red = at its peak (1), blue = fading in or out",
             }[s.mode])
         _, s.splat_scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f")
+        self._draw_footprint_ui(s)
         max_deg = self.renderer.splats.sh_degree if self.renderer.splats is not None else 0
         deg = max_deg if s.sh_degree is None else min(s.sh_degree, max_deg)
         changed, deg = imgui.slider_int("SH degree", deg, 0, max_deg)
@@ -1001,6 +1005,34 @@ class ViewerApp:
             imgui.set_tooltip(f"draw fewer pixels while the view moves, to keep frames under {res.budget_ms:.0f} ms")
         if imgui.button("Screenshot (P)"):
             self._screenshot_request = self._next_screenshot_name()
+
+    @staticmethod
+    def _draw_footprint_ui(s: RenderSettings) -> None:
+        """The footprint caps (`sorting.Footprint`): checkbox and slider each, off by default."""
+        from imgui_bundle import imgui
+
+        changed, on = imgui.checkbox("limit reach", s.max_std_dev is not None)
+        if changed:
+            s.max_std_dev = math.sqrt(8.0) if on else None
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("draw each splat out to at most this many std-devs: fewer pixels, harder edges\n"
+                              "(off: out to alpha 1/255 as the trainer, ~3.3; web viewers 2.83; fast 2.24)")
+        if s.max_std_dev is not None:
+            imgui.same_line()
+            changed, value = imgui.slider_float("std-devs##reach", s.max_std_dev, 1.0, 3.3, "%.2f")
+            if changed:  # (the slider's float32 round trip would change a value typed on the command line)
+                s.max_std_dev = max(value, 0.1)
+        changed, on = imgui.checkbox("limit screen size", s.max_screen_radius is not None)
+        if changed:
+            s.max_screen_radius = 0.25 if on else None
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("cap each splat's radius at a share of the window height,\n"
+                              "against huge splats close to the camera filling the screen")
+        if s.max_screen_radius is not None:
+            imgui.same_line()
+            changed, value = imgui.slider_float("of height##radius", s.max_screen_radius, 0.01, 1.0, "%.2f")
+            if changed:
+                s.max_screen_radius = max(value, 0.01)
 
     def _draw_path_ui(self) -> None:
         from imgui_bundle import imgui

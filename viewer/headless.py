@@ -21,6 +21,7 @@ from splat4d.errors import CameraError
 from .output import open_output
 from .panorama import Equirect
 from .renderer import FrameStats, RenderSettings, SplatRenderer, headless_context
+from .sorting import Footprint
 
 
 @dataclass
@@ -50,7 +51,7 @@ def render_frames(model, cameras: Sequence[Camera], times: Sequence[float], sett
         # one range for all frames, and for all six faces of a panorama (else its faces would not match)
         views = [f for c in cameras for f in equirect.face_cameras(c)] if equirect is not None else cameras
         view_times = np.repeat(np.asarray(times, np.float64), len(views) // len(cameras))
-        settings = replace(settings, value_range=sequence_depth_range(r, views, view_times, settings.splat_scale))
+        settings = replace(settings, value_range=sequence_depth_range(r, views, view_times, settings.footprint))
     bar = tqdm(total=len(cameras), unit="frame", desc=progress if isinstance(progress, str) else "render",
                disable=not progress, dynamic_ncols=True)
     try:
@@ -83,11 +84,11 @@ DEPTH_RANGE_SAMPLES = 8
 
 
 def sequence_depth_range(renderer: SplatRenderer, cameras: Sequence[Camera], times: Sequence[float],
-                         splat_scale: float = 1.0) -> tuple[float, float]:
+                         footprint: Footprint = Footprint()) -> tuple[float, float]:
     """One (near, far) for the depth colour map of a whole sequence: the union of the per-frame ranges (the 2nd to
     98th percentile of the drawn depths, `SortResult.depth_range`) of `DEPTH_RANGE_SAMPLES` frames."""
     picks = np.unique(np.linspace(0, len(cameras) - 1, min(DEPTH_RANGE_SAMPLES, len(cameras))).round().astype(int))
-    ranges = [renderer.sort(cameras[i], float(times[i]), splat_scale).depth_range for i in picks]
+    ranges = [renderer.sort(cameras[i], float(times[i]), footprint).depth_range for i in picks]
     return min(near for near, _ in ranges), max(far for _, far in ranges)
 
 

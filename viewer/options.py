@@ -89,3 +89,26 @@ def argtype(parse):
 
     convert.__name__ = parse.__name__.replace("parse_", "")
     return convert
+
+
+def parse_positive(text: str) -> float:
+    """'2.5' -> 2.5; a positive finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise OptionError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def add_footprint_args(parser: argparse.ArgumentParser) -> None:
+    """The performance guards on how far each splat reaches (`splat4d.viewer.sorting.Footprint`), off by default
+    (they change the image)."""
+    parser.add_argument("--max-std-dev", type=argtype(parse_positive), default=None, metavar="SIGMAS",
+                        help="draw each splat out to at most this many std-devs: fewer pixels to shade, harder "
+                             "edges on large splats (web viewers draw 2.83 = sqrt 8; 2.24 = sqrt 5 is their fast "
+                             "setting); default: out to alpha 1/255, as the trainer (about 3.3 for opaque ones)")
+    parser.add_argument("--max-screen-radius", type=argtype(parse_positive), default=None, metavar="SHARE",
+                        help="cap each splat's radius at this share of the image height (e.g. 0.25), against "
+                             "huge splats close to the camera filling the screen; default: no cap")

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
+from splat4d.constants import MAX_ALPHA, TRANSMITTANCE_THRESHOLD
 from splat4d.covariance import condition_on_time, visible_span
 from splat4d.model import Gaussians3D, Gaussians4D
 
@@ -89,9 +89,11 @@ def footprint_alpha(records: np.ndarray, pixel: tuple[float, float]) -> np.ndarr
     det = np.where(culled | (det == 0.0), 1.0, det)
     dx, dy = pixel[0] - centre[:, 0], pixel[1] - centre[:, 1]
     u, v = (d * dx - b * dy) / det, (a * dy - c * dx) / det
-    alpha = np.minimum(MAX_ALPHA, opacity * np.exp(-0.5 * (u * u + v * v)))
+    r2 = u * u + v * v
+    alpha = np.minimum(MAX_ALPHA, opacity * np.exp(-0.5 * r2))
     inside = (pixel[0] >= rect[:, 0]) & (pixel[1] >= rect[:, 1]) & (pixel[0] < rect[:, 2]) & (pixel[1] < rect[:, 3])
-    return np.where(culled | ~inside | (alpha < ALPHA_THRESHOLD), 0.0, alpha)
+    # past the pre-pass's footprint radius (alpha < ALPHA_THRESHOLD unless a footprint cap cut it shorter)
+    return np.where(culled | ~inside | (r2 > r[:, 2] ** 2), 0.0, alpha)
 
 
 def composite_pixel(records: np.ndarray, indices: np.ndarray, pixel: tuple[int, int]) -> PixelStack:

@@ -38,7 +38,7 @@ from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_c
 
 from . import splats as splatlib
 from .pick import PixelStack, composite_pixel
-from .sorting import SortKey, SortResult, depth_order
+from .sorting import Footprint, SortKey, SortResult, depth_order, footprint_caps
 
 #: Display modes, in the order of the app's combo box.
 RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers", "speed", "lifespan", "fade")
@@ -106,6 +106,9 @@ class RenderSettings:
             TRANSMITTANCE_THRESHOLD, like the reference rasterizer) or "back-to-front" (over-blending, no early
             stop). Same image either way (to float rounding and the 1e-4 early-stop residue).
         primitive: one of `PRIMITIVES`; the same image either way, "auto" is the fast choice.
+        max_std_dev: cap on how far a splat reaches, in std-devs (None = to the alpha cut-off, as the reference);
+            see `Footprint`.
+        max_screen_radius: cap on a splat's radius as a share of the image height (None = none).
     """
 
     mode: str = "color"
@@ -116,6 +119,8 @@ class RenderSettings:
     value_range: tuple[float, float] | None = None
     composite: str = "front-to-back"
     primitive: str = "auto"
+    max_std_dev: float | None = None
+    max_screen_radius: float | None = None
 
     def __post_init__(self) -> None:
         self.mode = parse_mode(self.mode)
@@ -129,6 +134,16 @@ class RenderSettings:
         self.background = bg  # type: ignore[assignment]
         if not (np.isfinite(self.splat_scale) and self.splat_scale > 0):
             raise GLError(f"splat scale must be positive, got {self.splat_scale}")
+        try:
+            self.footprint
+        except ValueError as exc:
+            raise GLError(str(exc)) from None
+
+    @property
+    def footprint(self) -> Footprint:
+        """How far the splats reach (`sorting.Footprint`): the splat scale and the two caps."""
+        return Footprint(self.splat_scale, math.inf if self.max_std_dev is None else self.max_std_dev,
+                         math.inf if self.max_screen_radius is None else self.max_screen_radius)
 
 
 @dataclass
@@ -333,12 +348,12 @@ class SplatRenderer:
         return self.splats
 
     # --- sorting ----------------------------------------------------------------------------------------------
-    def sort(self, camera: Camera, t: float, scale: float = 1.0) -> SortResult:
+    def sort(self, camera: Camera, t: float, footprint: Footprint = Footprint()) -> SortResult:
         """Synchronous back-to-front order at (camera, t); reused while the view does not change."""
-        key = SortKey.of(camera, t, scale)
+        key = SortKey.of(camera, t, footprint)
         splats = self.splats_at(t)
         if self._order is None or self._order.key != key:
-            self._order = depth_order(splats, camera, t, scale, parallel=True)  # nothing else runs meanwhile
+            self._order = depth_order(splats, camera, t, footprint, parallel=True)  # nothing else runs meanwhile
         return self._order
 
     # --- targets ----------------------------------------------------------------------------------------------
@@ -384,7 +399,7 @@ class SplatRenderer:
         stats.upload_ms = (time.perf_counter() - start) * 1e3
         if order is None:
             before = self._order
-            order = self.sort(camera, t, settings.splat_scale)
+            order = self.sort(camera, t, settings.footprint)
             stats.resorted = order is not before
             stats.sort_ms = order.ms if stats.resorted else 0.0
         stats.visible = order.visible
@@ -412,7 +427,7 @@ class SplatRenderer:
         ctx = self.ctx
         front_to_back = settings.composite == "front-to-back"
         # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
-        stale = order.key != SortKey.of(camera, t, settings.splat_scale)
+        stale = order.key != SortKey.of(camera, t, settings.footprint)
         boxes = _boxes_for(order, camera) if stale else order.boxes
         indices = order.order[::-1] if front_to_back else order.order
         boxes = boxes[::-1] if front_to_back else boxes
@@ -573,7 +588,8 @@ class SplatRenderer:
                       u_trans=w2c[:3, 3], u_campos=camera.position,
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
-                      u_scale=settings.splat_scale, u_sh_degree=degree, u_sh=0,
+                      u_scale=settings.splat_scale, u_max_radius=footprint_caps(settings.footprint, camera.height),
+                      u_sh_degree=degree, u_sh=0,
                       u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 
     def _resolve(self, settings: RenderSettings, value_range, target, viewport) -> None:
@@ -602,7 +618,7 @@ class SplatRenderer:
         if not (0 <= x < camera.width and 0 <= y < camera.height):
             raise GLError(f"pixel ({x}, {y}) is outside the {camera.width}x{camera.height} image")
         splats = self.splats_at(t)
-        order = self.sort(camera, t, settings.splat_scale)
+        order = self.sort(camera, t, settings.footprint)
         px, py = x + 0.5, y + 0.5
         b = order.boxes[::-1]  # nearest first
         near = (np.abs(px - b[:, 0]) <= b[:, 2]) & (np.abs(py - b[:, 1]) <= b[:, 3])

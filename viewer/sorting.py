@@ -38,17 +38,48 @@ _MAX_EXPONENT = -math.log(TEMPORAL_CULL)
 
 
 @dataclass(frozen=True)
+class Footprint:
+    """How far each splat reaches on screen. By default, as in the reference rasterizer, out to where its alpha
+    falls below ALPHA_THRESHOLD (about 3.3 std-devs for an opaque Gaussian); the two caps are the performance guards
+    of web viewers (their maxStdDev, and a screen-radius cap against the fill-rate collapse of huge splats close to
+    the camera), off by default since they change the image.
+
+    Attributes:
+        scale: multiplies every std-dev (1 = as trained).
+        max_std_dev: largest reach in std-devs of the (scaled) Gaussian, inf = none (web viewers draw sqrt(8),
+            2.83; sqrt(5), 2.24, is their fast setting).
+        max_screen_radius: largest reach along the major axis, as a share of the image height (so the same at
+            every resolution), inf = none.
+    """
+
+    scale: float = 1.0
+    max_std_dev: float = math.inf
+    max_screen_radius: float = math.inf
+
+    def __post_init__(self) -> None:
+        for name in ("scale", "max_std_dev", "max_screen_radius"):
+            value = float(getattr(self, name))
+            if not value > 0 or (name == "scale" and math.isinf(value)):
+                raise ValueError(f"{name.replace('_', ' ')} must be a positive number, got {getattr(self, name)}")
+            object.__setattr__(self, name, value)
+
+    @property
+    def capped(self) -> bool:
+        return math.isfinite(self.max_std_dev) or math.isfinite(self.max_screen_radius)
+
+
+@dataclass(frozen=True)
 class SortKey:
-    """What an order depends on: the view (w2c, intrinsics, size), the time and the splat scale."""
+    """What an order depends on: the view (w2c, intrinsics, size), the time and the splats' `Footprint`."""
 
     w2c: bytes
     intrinsics: tuple[float, float, float, float, int, int]
     time: float
-    scale: float
+    footprint: Footprint
 
     @classmethod
-    def of(cls, camera: Camera, t: float, scale: float = 1.0) -> "SortKey":
-        return cls(*view_key(camera), float(t), float(scale))
+    def of(cls, camera: Camera, t: float, footprint: Footprint = Footprint()) -> "SortKey":
+        return cls(*view_key(camera), float(t), footprint)
 
 
 def view_key(camera: Camera) -> tuple[bytes, tuple[float, float, float, float, int, int]]:
@@ -109,12 +140,13 @@ def _dilog(x):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, lims, max_exp, alpha_min, max_alpha, near, eps2d,
-               out, boxes):
+def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, caps, lims, max_exp, alpha_min, max_alpha, near,
+               eps2d, out, boxes):
     """out[i] = -depth of Gaussian i at t (+inf when culled, see module doc); boxes[i] = (u, v, half-width,
-    half-height, quad area, optical mass): the pixel box holding every pixel it can give alpha >= alpha_min, the
-    area of the quad along its axes out to that cut-off (what splat_draw.glsl draws), and its optical depth
-    -ln(1 - alpha) integrated over the image plane (pixels). `lims`: `_frustum_limits`."""
+    half-height, quad area, optical mass): the pixel box holding every pixel it can give alpha >= alpha_min within
+    the `caps` (largest radius in std-devs, in pixels along the major axis), the area of the quad along its axes
+    out to that cut-off (what splat_draw.glsl draws), and its optical depth -ln(1 - alpha) integrated over the
+    image plane (pixels; the uncapped Gaussian's). `lims`: `_frustum_limits`."""
     fx, fy, cx, cy = view[12], view[13], view[14], view[15]
     lim_x0, lim_x1, lim_y0, lim_y1 = lims
     out[i] = np.inf
@@ -157,6 +189,9 @@ def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, lims, max_exp
     if not det > 0.0:
         return
     rr = 2.0 * math.log(o / alpha_min)  # squared cut-off radius in std-devs
+    # Footprint caps, as splat_preprocess.glsl: std-devs, then pixels along the major axis (sqrt(lambda_1) px)
+    rr = min(rr, caps[0] * caps[0])
+    rr = min(rr, caps[1] * caps[1] / (0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))))
     hx = math.sqrt(rr * a) + 1.0  # + 1 px: float32 on the GPU, pixel-centre rounding
     hy = math.sqrt(rr * c) + 1.0
     u = fx * x * iz + cx
@@ -186,29 +221,29 @@ def _frustum_limits(view, width, height, clamp):
 # over all cores, for a caller that waits for the order with nothing else running (`SplatRenderer.sort`). Two
 # functions rather than two builds of one: numba's cache keys a build by its function, not by its flags.
 @numba.njit(cache=True, nogil=True)
-def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, max_alpha, near, eps2d,
-                clamp, out, boxes):
+def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, caps, max_exp, alpha_min, max_alpha, near,
+                eps2d, clamp, out, boxes):
     """`_depth_key` for every Gaussian."""
     lims = _frustum_limits(view, width, height, clamp)
     for i in range(mean_t.shape[0]):
-        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, lims, max_exp, alpha_min,
+        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, caps, lims, max_exp, alpha_min,
                    max_alpha, near, eps2d, out, boxes)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _depth_keys_parallel(mean_t, motion, cov, view, t, width, height, scale, max_exp, alpha_min, max_alpha, near,
-                         eps2d, clamp, out, boxes):
+def _depth_keys_parallel(mean_t, motion, cov, view, t, width, height, scale, caps, max_exp, alpha_min, max_alpha,
+                         near, eps2d, clamp, out, boxes):
     """`_depth_keys` on all cores (the same result)."""
     lims = _frustum_limits(view, width, height, clamp)
     for i in numba.prange(mean_t.shape[0]):
-        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, lims, max_exp, alpha_min,
+        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, caps, lims, max_exp, alpha_min,
                    max_alpha, near, eps2d, out, boxes)
 
 
-def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.0,
+def depth_order(splats: SplatArrays, camera: Camera, t: float, footprint: Footprint = Footprint(),
                 parallel: bool = False) -> SortResult:
-    """Sort the drawable Gaussians of `splats` back to front at time `t` (see module doc); `parallel` computes the
-    keys on all cores (the same result)."""
+    """Sort the drawable Gaussians of `splats` back to front at time `t` (see module doc), drawn with `footprint`;
+    `parallel` computes the keys on all cores (the same result)."""
     start = time.perf_counter()
     n = len(splats)
     neg = np.empty(n, np.float32)
@@ -216,9 +251,15 @@ def depth_order(splats: SplatArrays, camera: Camera, t: float, scale: float = 1.
     if n:
         kernel = _depth_keys_parallel if parallel else _depth_keys
         kernel(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
-               float(camera.height), float(scale), _MAX_EXPONENT, ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE, EPS2D,
-               FRUSTUM_CLAMP, neg, boxes)
-    return _finish(neg, boxes, SortKey.of(camera, t, scale), start)
+               float(camera.height), footprint.scale, footprint_caps(footprint, camera.height), _MAX_EXPONENT,
+               ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE, EPS2D, FRUSTUM_CLAMP, neg, boxes)
+    return _finish(neg, boxes, SortKey.of(camera, t, footprint), start)
+
+
+def footprint_caps(footprint: Footprint, height: int) -> tuple[float, float]:
+    """(largest radius in std-devs, largest radius in pixels of an image `height` high) of `footprint`: what the
+    key kernel and splat_preprocess.glsl clamp the cut-off radius with (1e30 for none: GLSL has no infinity)."""
+    return (min(footprint.max_std_dev, 1e30), min(footprint.max_screen_radius * height, 1e30))
 
 
 def _finish(neg_depth: np.ndarray, boxes: np.ndarray, key: SortKey, start: float) -> SortResult:
@@ -319,7 +360,7 @@ def _hideable(boxes, nx, ny, tile, saturating):
 class AsyncSorter:
     """Sorts in a background thread; the caller draws with the newest finished order meanwhile.
 
-    ``request(splats, camera, t, scale, tag)`` replaces any pending request (only the latest view matters);
+    ``request(splats, camera, t, footprint, tag)`` replaces any pending request (only the latest view matters);
     ``poll()`` returns a new `SortResult` once, or None. The numba kernel releases the GIL, so the UI thread keeps
     running while a sort is in flight.
     """
@@ -334,9 +375,10 @@ class AsyncSorter:
         self._thread = threading.Thread(target=self._loop, name="splat4d-sort", daemon=True)
         self._thread.start()
 
-    def request(self, splats: SplatArrays, camera: Camera, t: float, scale: float = 1.0, tag: object = None) -> None:
+    def request(self, splats: SplatArrays, camera: Camera, t: float, footprint: Footprint = Footprint(),
+                tag: object = None) -> None:
         with self._cond:
-            self._pending = ((splats, camera, t, scale), tag)
+            self._pending = ((splats, camera, t, footprint), tag)
             self._cond.notify()
 
     def poll(self) -> SortResult | None:

@@ -33,7 +33,7 @@ DEFAULT_FPS = 30.0
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import argtype, parse_size, parse_vector
+    from splat4d.viewer.options import add_footprint_args, argtype, parse_size, parse_vector
     from splat4d.viewer.panorama import PROJECTIONS
 
     from ._crop import add_crop_arg
@@ -103,6 +103,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                                          "span, 0 to 1")
     s.add_argument("--sh-degree", type=int, default=None, help="render at a lower SH degree")
     s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
+    add_footprint_args(s)
     s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
                    help="blending order (same image; front-to-back stops saturated pixels early)")
     add_crop_arg(s, "; orbits frame what is left")
@@ -150,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
     model = apply_crop(ckpt.model, args.crop)
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                               background=bg if bg is not None else ckpt.background, transparent=transparent,
-                              composite=args.composite, value_range=args.map_range)
+                              composite=args.composite, value_range=args.map_range,
+                              max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius)
 
     trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")
     path = None

@@ -30,7 +30,7 @@ examples:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import argtype, parse_pixel, parse_rect, parse_size
+    from splat4d.viewer.options import add_footprint_args, argtype, parse_pixel, parse_rect, parse_size
 
     from ._crop import add_crop_arg
 
@@ -45,6 +45,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", default="color",
                    help="color, depth, alpha, outlines, centers, speed, lifespan or fade (default color)")
     p.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
+    add_footprint_args(p)
     p.add_argument("--sh-degree", type=int, default=None, help="display at a lower SH degree")
     p.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
                    help="blending order (default front-to-back)")
@@ -110,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--render-scale must be a multiple of 1/8 between 0.25 and 1 (0.25, 0.375, 0.5, ... 1), "
                           f"got {args.render_scale}")
     look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
-                          composite=args.composite, background=bg or (0.0, 0.0, 0.0))
+                          composite=args.composite, background=bg or (0.0, 0.0, 0.0),
+                          max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius)
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, play_path=args.play_path,

@@ -1,0 +1,127 @@
+"""Footprint caps (`splat4d.viewer.sorting.Footprint`): a splat drawn out to at most `max_std_dev` std-devs, or to a
+share of the image height, is the uncapped splat inside that radius and nothing outside it, with points and quads,
+in the sort's screen boxes, in picks and from the command line."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from splat4d.cameras import look_at
+from splat4d.checkpoint import save_checkpoint
+from splat4d.cli import main
+from splat4d.constants import EPS2D
+from splat4d.viewer.renderer import GLError, RenderSettings, SplatRenderer, headless_context
+from splat4d.viewer.sorting import Footprint
+from test_viewer_sort import RED, swapping_pair
+
+SIZE = 64
+SIGMA = 0.15  # swapping_pair's isotropic std-dev (world units)
+DISTANCE = 4.0
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    """The red Gaussian alone, at the origin at t = 0.5, seen head-on from DISTANCE: a round splat at the image
+    centre with std-dev `sigma_px()`."""
+    model = swapping_pair().select(torch.tensor([RED]))
+    r = SplatRenderer(headless_context(), model)
+    yield r
+    r.release()
+
+
+def camera():
+    return look_at((-DISTANCE, 0.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=30, width=SIZE, height=SIZE)
+
+
+def sigma_px() -> float:
+    """The splat's std-dev in pixels: f sigma / z, blurred by EPS2D (the Jacobian at the image centre)."""
+    focal = camera().fy
+    return math.sqrt((focal * SIGMA / DISTANCE) ** 2 + EPS2D)
+
+
+def distances_px() -> np.ndarray:
+    """[H, W] distance of each pixel centre from the image centre (where the splat is)."""
+    cam = camera()
+    y, x = np.mgrid[0:SIZE, 0:SIZE] + 0.5
+    return np.hypot(x - cam.cx, y - cam.cy)
+
+
+def alpha(r: SplatRenderer, **caps) -> np.ndarray:
+    r.render(camera(), 0.5, RenderSettings(transparent=True, **caps))
+    return r.read_display()[..., 3]
+
+
+@pytest.mark.parametrize("caps, radius_px", [
+    ({"max_std_dev": 2.0}, 2.0 * sigma_px()),
+    ({"max_screen_radius": 0.1}, 0.1 * SIZE),
+    ({"max_std_dev": 2.5, "max_screen_radius": 0.1}, 0.1 * SIZE),  # the tighter one wins
+])
+@pytest.mark.parametrize("primitive", ["points", "quads"])
+def test_a_capped_splat_is_the_splat_inside_the_cap_and_nothing_outside(renderer, caps, radius_px, primitive):
+    d = distances_px()
+    full = alpha(renderer, primitive=primitive)
+    capped = alpha(renderer, primitive=primitive, **caps)
+    inside, outside = d < radius_px - 0.5, d > radius_px + 0.5
+    assert inside.sum() > 20
+    np.testing.assert_allclose(capped[inside], full[inside], atol=1e-6)
+    assert capped[outside].max() == 0.0
+    # the uncapped splat does reach past the cap (to ~3.3 std-devs), so the cap took something away
+    assert (full[outside] > 0).sum() > 50 and (d[full > 0].max()) > 3.0 * sigma_px()
+
+
+def test_no_cap_changes_nothing_and_a_cap_beyond_the_cut_off_is_no_cap(renderer):
+    full = alpha(renderer)
+    assert RenderSettings().footprint == Footprint()
+    np.testing.assert_array_equal(alpha(renderer, max_std_dev=3.5, max_screen_radius=10.0), full)
+
+
+def test_the_sort_boxes_follow_the_cap(renderer):
+    """The screen boxes that choose points or quads and skip hidden Gaussians shrink with the cap: half-width
+    = radius * sigma_px + 1 px of slack."""
+    for footprint, reach in ((Footprint(max_std_dev=2.0), 2.0 * sigma_px()),
+                             (Footprint(max_screen_radius=0.1), 0.1 * SIZE)):
+        box = renderer.sort(camera(), 0.5, footprint).boxes[0]
+        assert box[2] == pytest.approx(reach + 1.0, rel=1e-3) and box[3] == pytest.approx(reach + 1.0, rel=1e-3)
+    full = renderer.sort(camera(), 0.5).boxes[0]
+    assert full[2] > 3.2 * sigma_px()
+
+
+def test_pick_sees_the_capped_splat(renderer):
+    cam = camera()
+    x = int(cam.cx + 2.6 * sigma_px())  # a pixel between 2.5 and 2.85 std-devs right of the centre
+    capped = RenderSettings(max_std_dev=2.0)
+    assert renderer.pick(cam, 0.5, x, SIZE // 2).hits
+    assert not renderer.pick(cam, 0.5, x, SIZE // 2, capped).hits
+    near = renderer.pick(cam, 0.5, SIZE // 2 + 3, SIZE // 2, capped)
+    assert near.alpha == pytest.approx(float(alpha(renderer, max_std_dev=2.0)[SIZE // 2, SIZE // 2 + 3]), abs=1e-5)
+
+
+@pytest.mark.parametrize("caps", [{"max_std_dev": 0.0}, {"max_std_dev": -1.0}, {"max_screen_radius": math.nan}])
+def test_caps_must_be_positive(caps):
+    with pytest.raises(GLError, match="must be a positive number"):
+        RenderSettings(**caps)
+
+
+def test_render_command_caps_splats_and_rejects_bad_values(tmp_path, capsys):
+    ckpt = tmp_path / "one.safetensors"
+    save_checkpoint(ckpt, swapping_pair().select(torch.tensor([RED])))
+    view = ["--trajectory", "orbit", "--size", "64x64", "--time", "0.5", "--background", "transparent", "--quiet"]
+    covered = {}
+    for name, extra in (("full", []), ("capped", ["--max-std-dev", "1.5"])):
+        out = tmp_path / f"{name}.exr"
+        assert main(["render", str(ckpt), "--out", str(out), *view, *extra]) == 0
+        import OpenImageIO as oiio
+
+        covered[name] = int((oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., 3] > 0).sum())
+    # the area goes with the reach squared: (1.5 / ~3.3)^2 ~ 0.2 of the pixels
+    assert 0.1 * covered["full"] < covered["capped"] < 0.35 * covered["full"]
+    capsys.readouterr()
+    for bad in (["--max-std-dev", "0"], ["--max-screen-radius", "wide"]):
+        with pytest.raises(SystemExit):
+            main(["render", str(ckpt), "--out", str(tmp_path / "x.png"), *view, *bad])
+        err = capsys.readouterr().err
+        assert "expected a positive number" in err and "Traceback" not in err

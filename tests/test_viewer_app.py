@@ -116,6 +116,24 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
     assert psnr(img, headless_of(report, model)) >= 40.0
 
 
+def test_playback_lowers_the_resolution_to_fit_the_frame_budget_unless_kept_sharp(display, files, tmp_path):
+    """A still camera while the animation plays: with a frame budget no frame can meet, the playing frames are
+    drawn below full resolution (`Resolution.while_playing`), with ``--sharp-playback`` at full resolution; paused,
+    at full resolution (the depth-view test below)."""
+    _, _, ckpt = files
+    reports = []
+    for extra in ([], ["--sharp-playback"]):
+        report_path = tmp_path / "report.json"
+        proc = run_view(display, str(ckpt), "--size", "160x120", "--frame-budget", "0.001", "--exit-after", "6",
+                        "--report", str(report_path), *extra)
+        assert proc.returncode == 0, proc.stderr
+        reports.append(json.loads(report_path.read_text()))
+    playing, sharp = reports
+    assert playing["time_end"] != playing["time_start"] and playing["moving_frames"] == 0
+    assert min(playing["resolutions"]) < 1.0
+    assert sharp["time_end"] != sharp["time_start"] and sharp["resolutions"] == [1.0]
+
+
 def test_app_draws_with_the_footprint_caps_like_headless(display, tmp_path):
     """``view --max-std-dev --max-screen-radius``: the window draws the capped splats (its screenshot is the
     headless render with the same caps, and not the uncapped one)."""

@@ -120,3 +120,13 @@ def test_resolution_drops_while_moving_to_fit_the_budget_and_is_sharp_at_rest():
         r.observe(1.0, 0.25)
     assert r.predicted_ms(1.0) == (pytest.approx(16.0), False)  # from the fresh 0.25 step, not the old 500 ms
     assert scaled_size(1280, 720, 0.375) == (480, 270) and scaled_size(3, 3, 0.25) == (1, 1)
+
+
+def test_playing_counts_as_a_changing_view_unless_playback_is_kept_sharp():
+    from splat4d.viewer.controls import Resolution
+
+    r = Resolution()
+    assert r.changing(moving=True, playing=False) and r.changing(moving=False, playing=True)
+    assert not r.changing(moving=False, playing=False)
+    r.while_playing = False
+    assert r.changing(moving=True, playing=True) and not r.changing(moving=False, playing=True)

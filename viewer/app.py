@@ -11,8 +11,9 @@ Sorting runs in a worker thread (`AsyncSorter`): every frame is drawn with the n
 and a new sort is requested whenever the camera, the time or the splat scale changed, so the UI never waits for a
 sort. Screenshots are the exception: they wait for the order of their exact view.
 
-While the view moves, frames are drawn at a lower resolution when the full one would not fit the frame budget
-(`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always full resolution.
+While the view moves or the animation plays, frames are drawn at a lower resolution when the full one would not fit
+the frame budget (`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always
+full resolution.
 
 Editing (the Edit tab): the crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they
 show most; the panel copies the box as the ``--crop`` option of convert, render and export) and deleted Gaussians
@@ -78,9 +79,11 @@ class AppOptions:
     vsync: bool = True
     #: share of the window's pixels drawn per axis at rest (`Resolution.scale`) ...
     render_scale: float = 1.0
-    #: ... and whether to draw fewer while the view moves, to keep frames within `frame_budget_ms`
+    #: ... and whether to draw fewer while the view moves, to keep frames within `frame_budget_ms` ...
     adaptive_resolution: bool = True
     frame_budget_ms: float = 40.0
+    #: ... and while the animation plays under a still camera (`Resolution.while_playing`)
+    lower_while_playing: bool = True
     #: automation (tests, scripted captures): stop after this many frames ...
     exit_after: int | None = None
     #: ... and save a screenshot of the last frame here, and a JSON report here
@@ -103,6 +106,7 @@ class _Stats:
     frame_ms: float = 0.0
     scale: float = 1.0
     moving: bool = False
+    playing: bool = False
     sort_ms: float = 0.0
     sorts: int = 0
 
@@ -266,8 +270,10 @@ class ViewerApp:
         self._order: SortResult | None = None
         self._requested: tuple | None = None
         o = self.options
-        self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms)
+        self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms,
+                                     while_playing=o.lower_while_playing)
         self._last_pose: tuple | None = None
+        self._last_time: float | None = None
 
     # --- set-up -------------------------------------------------------------------------------------------------
     def _init_window(self) -> None:
@@ -707,7 +713,9 @@ class ViewerApp:
         screenshot = self._screenshot_request
         pose = view_key(window_camera)
         moving, self._last_pose = pose != self._last_pose and self._last_pose is not None, pose
-        scale = 1.0 if screenshot else self.resolution.choose(moving, width, height)
+        playing, self._last_time = t != self._last_time and self._last_time is not None, t
+        changing = self.resolution.changing(moving, playing)
+        scale = 1.0 if screenshot else self.resolution.choose(changing, width, height)
         if scale != 1.0:
             camera = window_camera.resized(*scaled_size(width, height, scale))
         s = self.settings
@@ -726,7 +734,7 @@ class ViewerApp:
         glfw.make_context_current(self._window)  # the panel draws next, with the window's context
         self.resolution.observe(stats.draw_ms + stats.upload_ms, scale)
         st = self._stats
-        st.frame, st.scale, st.moving = stats, scale, moving
+        st.frame, st.scale, st.moving, st.playing = stats, scale, moving, playing
         self.report.setdefault("resolutions", set()).add(scale)
         self.report["moving_frames"] = self.report.get("moving_frames", 0) + moving
         if screenshot:
@@ -903,7 +911,8 @@ class ViewerApp:
         imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
         imgui.text(f"sort {st.sort_ms:5.1f} ms  draw {st.frame.draw_ms + st.frame.upload_ms:5.1f} ms")
         imgui.text(f"visible {st.frame.visible:,} / {st.frame.total:,} Gaussians")
-        imgui.text(f"resolution {100 * st.scale:3.0f}%" + ("  (moving)" if st.moving and st.scale < 1 else ""))
+        why = "moving" if st.moving else "playing" if st.playing else None
+        imgui.text(f"resolution {100 * st.scale:3.0f}%" + (f"  ({why})" if why and st.scale < 1 else ""))
 
         imgui.separator_text("Time")
         t0, t1 = pb.time_range
@@ -1003,6 +1012,11 @@ class ViewerApp:
         _, res.adaptive = imgui.checkbox("lower while moving", res.adaptive)
         if imgui.is_item_hovered():
             imgui.set_tooltip(f"draw fewer pixels while the view moves, to keep frames under {res.budget_ms:.0f} ms")
+        if res.adaptive:
+            imgui.same_line()
+            _, res.while_playing = imgui.checkbox("and playing", res.while_playing)
+            if imgui.is_item_hovered():
+                imgui.set_tooltip("also while the animation plays under a still camera (sharp again when paused)")
         if imgui.button("Screenshot (P)"):
             self._screenshot_request = self._next_screenshot_name()
 

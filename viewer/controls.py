@@ -199,9 +199,10 @@ RESOLUTION_STEPS: tuple[float, ...] = tuple(k / 8 for k in range(2, 9))
 class Resolution:
     """Render resolution of the app, as a share of the window's pixels per axis.
 
-    At rest the app draws at `scale` (1 = every window pixel). While the view moves and `adaptive` is on, it draws
-    at the largest of `RESOLUTION_STEPS` (at most `scale`) whose predicted draw time fits `budget_ms`, and the image
-    is stretched to the window; the first frame at rest is sharp again.
+    At rest the app draws at `scale` (1 = every window pixel). While the view changes and `adaptive` is on (the
+    camera moves, or with `while_playing` the animation plays: `changing`), it draws at the largest of
+    `RESOLUTION_STEPS` (at most `scale`) whose predicted draw time fits `budget_ms`, and the image is stretched to
+    the window; the first frame at rest (still camera, paused) is sharp again.
 
     Predictions come from what each step measured lately (a running average, and when the current step gets
     cheaper or dearer the other steps' averages follow in proportion; measurements older than `memory` frames, or
@@ -215,6 +216,7 @@ class Resolution:
     scale: float = 1.0
     adaptive: bool = True
     budget_ms: float = 40.0
+    while_playing: bool = True
     memory: int = 120
     _measured: dict = field(default_factory=dict)  # step -> (running average of draw ms, frame number)
     _frame: int = 0
@@ -258,8 +260,14 @@ class Resolution:
                 out[step] = (fresh[nearest] * (step / nearest) ** 2, False)
         return out
 
+    def changing(self, moving: bool, playing: bool) -> bool:
+        """Whether a frame whose camera `moving` and whose model time `playing` (changed since the frame before)
+        may be drawn at a lower resolution, as `choose` takes it."""
+        return moving or (playing and self.while_playing)
+
     def choose(self, moving: bool, width: int, height: int) -> float:
-        """The scale of the next frame in a window of `width` x `height` pixels."""
+        """The scale of the next frame in a window of `width` x `height` pixels; `moving`: the view is changing
+        (`changing`)."""
         top = self.step_of(self.scale)
         if (width, height) != self._window:
             if self._window != (0, 0):  # measured in another window size

@@ -30,7 +30,7 @@ examples:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import add_footprint_args, argtype, parse_pixel, parse_rect, parse_size
+    from splat4d.viewer.options import add_footprint_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
 
     from ._crop import add_crop_arg
 
@@ -64,8 +64,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="draw S x the window's width and height (0.25-1 in steps of 1/8, default 1) and stretch "
                         "the image to the window: faster on a CPU")
     p.add_argument("--no-adaptive-resolution", action="store_true",
-                   help="keep the full resolution while the view moves (by default fewer pixels are drawn while "
-                        "moving when a frame would take over 40 ms)")
+                   help="keep the full resolution while the view moves or the animation plays (by default fewer "
+                        "pixels are drawn then when a frame would take over --frame-budget)")
+    p.add_argument("--sharp-playback", action="store_true",
+                   help="lower the resolution only while the camera moves, not while the animation plays")
+    p.add_argument("--frame-budget", type=argtype(parse_positive), default=40.0, metavar="MS",
+                   help="frame time the adaptive resolution aims for (default 40 ms)")
     p.add_argument("--inspect", type=argtype(parse_pixel), metavar="X,Y",
                    help="start with this window pixel inspected, as if Ctrl+clicked (column, row from the top left; "
                         "--report lists its Gaussians)")
@@ -117,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, play_path=args.play_path,
                          screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
-                         adaptive_resolution=not args.no_adaptive_resolution, exit_after=args.exit_after,
+                         adaptive_resolution=not args.no_adaptive_resolution, frame_budget_ms=args.frame_budget,
+                         lower_while_playing=not args.sharp_playback, exit_after=args.exit_after,
                          screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop,
                          inspect=args.inspect, select=args.select)
     # fail with a one-line error before opening a window

@@ -1023,30 +1023,14 @@ class ViewerApp:
     @staticmethod
     def _draw_footprint_ui(s: RenderSettings) -> None:
         """The footprint caps (`sorting.Footprint`): checkbox and slider each, off by default."""
-        from imgui_bundle import imgui
-
-        changed, on = imgui.checkbox("limit reach", s.max_std_dev is not None)
-        if changed:
-            s.max_std_dev = math.sqrt(8.0) if on else None
-        if imgui.is_item_hovered():
-            imgui.set_tooltip("draw each splat out to at most this many std-devs: fewer pixels, harder edges\n"
-                              "(off: out to alpha 1/255 as the trainer, ~3.3; web viewers 2.83; fast 2.24)")
-        if s.max_std_dev is not None:
-            imgui.same_line()
-            changed, value = imgui.slider_float("std-devs##reach", s.max_std_dev, 1.0, 3.3, "%.2f")
-            if changed:  # (the slider's float32 round trip would change a value typed on the command line)
-                s.max_std_dev = max(value, 0.1)
-        changed, on = imgui.checkbox("limit screen size", s.max_screen_radius is not None)
-        if changed:
-            s.max_screen_radius = 0.25 if on else None
-        if imgui.is_item_hovered():
-            imgui.set_tooltip("cap each splat's radius at a share of the window height,\n"
-                              "against huge splats close to the camera filling the screen")
-        if s.max_screen_radius is not None:
-            imgui.same_line()
-            changed, value = imgui.slider_float("of height##radius", s.max_screen_radius, 0.01, 1.0, "%.2f")
-            if changed:
-                s.max_screen_radius = max(value, 0.01)
+        s.max_std_dev = _optional_slider(
+            s.max_std_dev, "limit reach", "std-devs##reach", 1.0, 3.3, math.sqrt(8.0),
+            "draw each splat out to at most this many std-devs: fewer pixels, harder edges\n"
+            "(off: out to alpha 1/255 as the trainer, ~3.3; web viewers 2.83; fast 2.24)")
+        s.max_screen_radius = _optional_slider(
+            s.max_screen_radius, "limit screen size", "of height##radius", 0.01, 1.0, 0.25,
+            "cap each splat's radius at a share of the window height,\n"
+            "against huge splats close to the camera filling the screen")
 
     def _draw_path_ui(self) -> None:
         from imgui_bundle import imgui
@@ -1233,3 +1217,22 @@ class ViewerApp:
 def run_app(source, options: AppOptions | None = None) -> dict:
     """Open the viewer on `source` (a model path or `Checkpoint`) and block until it closes."""
     return ViewerApp(source, options).run()
+
+
+def _optional_slider(value: float | None, label: str, slider: str, lo: float, hi: float, default: float,
+                     tooltip: str) -> float | None:
+    """A checkbox `label` (None when unticked; ticking starts at `default`) with a slider from `lo` to `hi` beside
+    it while ticked; returns the new value."""
+    from imgui_bundle import imgui
+
+    changed, on = imgui.checkbox(label, value is not None)
+    if changed:
+        value = default if on else None
+    if imgui.is_item_hovered():
+        imgui.set_tooltip(tooltip)
+    if value is not None:
+        imgui.same_line()
+        changed, moved = imgui.slider_float(slider, value, lo, hi, "%.2f")
+        if changed:  # only then: the slider's float32 round trip would change a value typed on the command line
+            value = max(moved, lo)
+    return value

@@ -7,7 +7,7 @@
 // conditional covariance, unnormalised temporal marginal and its TEMPORAL_CULL), splat4d.sh (SH degrees 0-3 with
 // cosine time terms, colour = max(SH + 0.5, 0), view direction from the sliced mean), and the trainer's EWA
 // projection (OpenCV camera, Jacobian at x/z, y/z clamped to the image plus (FRUSTUM_CLAMP - 1) tan_fov on each
-// side, + EPS2D px^2, NEAR_PLANE cull), and its footprint rule: the tiles (TILE_SIZE) of the square box of radius
+// side, + EPS2D px^2, near-plane cull), and its footprint rule: the tiles (TILE_SIZE) of the square box of radius
 // ceil(RADIUS_SIGMAS sqrt(lambda_max)) (EIGEN_FLOOR under the discriminant), intersected with the alpha >=
 // ALPHA_THRESHOLD ellipse, optionally capped (splat4d.viewer.sorting.Footprint).
 //
@@ -30,6 +30,7 @@ uniform float u_time;       // model time t
 uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time terms)
 uniform float u_scale;      // splat scale (multiplies every std-dev)
 uniform vec2 u_max_radius;  // footprint caps: std-devs, pixels along the major axis (sorting.footprint_caps)
+uniform float u_near;       // near plane (camera depth; sorting.Footprint.near, NEAR_PLANE by default)
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
 uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|,
@@ -121,7 +122,7 @@ void main() {
 
     // --- EWA projection ---------------------------------------------------------------------------------------
     vec3 p = u_rot * mean + u_trans;
-    if (!(p.z > NEAR_PLANE)) { cull(); return; }
+    if (!(p.z > u_near)) { cull(); return; }
     float fx = u_intrinsics.x, fy = u_intrinsics.y;
     float cx = u_intrinsics.z, cy = u_intrinsics.w;
     float slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.x / fx;

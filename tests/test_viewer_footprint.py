@@ -1,6 +1,7 @@
-"""Footprint caps (`splat4d.viewer.sorting.Footprint`): a splat drawn out to at most `max_std_dev` std-devs, or to a
-share of the image height, is the uncapped splat inside that radius and nothing outside it, with points and quads,
-in the sort's screen boxes, in picks and from the command line."""
+"""Footprint caps and near plane (`splat4d.viewer.sorting.Footprint`): a splat drawn out to at most `max_std_dev`
+std-devs, or to a share of the image height, is the uncapped splat inside that radius and nothing outside it, with
+points and quads, in the sort's screen boxes, in picks and from the command line; a nearer near plane draws what the
+trainer's culls."""
 
 from __future__ import annotations
 
@@ -100,7 +101,23 @@ def test_pick_sees_the_capped_splat(renderer):
     assert near.alpha == pytest.approx(float(alpha(renderer, max_std_dev=2.0)[SIZE // 2, SIZE // 2 + 3]), abs=1e-5)
 
 
-@pytest.mark.parametrize("caps", [{"max_std_dev": 0.0}, {"max_std_dev": -1.0}, {"max_screen_radius": math.nan}])
+def test_a_nearer_near_plane_draws_a_gaussian_the_default_one_culls(renderer):
+    """0.15 in front of the camera: culled at the trainer's 0.2 (nothing drawn, sorted or picked), drawn, sorted
+    and picked with the near plane at 0.1."""
+    cam = look_at((-0.15, 0.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=30, width=SIZE, height=SIZE)
+    centre = (SIZE // 2, SIZE // 2)
+    for near, drawn in ((None, False), (0.1, True)):
+        settings = RenderSettings(transparent=True, **({} if near is None else {"near_plane": near}))
+        renderer.render(cam, 0.5, settings)
+        a = renderer.read_display()[..., 3]
+        assert (a.max() > 0.5) == drawn and (a.max() > 0) == drawn
+        assert renderer.sort(cam, 0.5, settings.footprint).visible == int(drawn)
+        stack = renderer.pick(cam, 0.5, *centre, settings)
+        assert bool(stack.hits) == drawn and stack.alpha == pytest.approx(float(a[centre[1], centre[0]]), abs=1e-5)
+
+
+@pytest.mark.parametrize("caps", [{"max_std_dev": 0.0}, {"max_std_dev": -1.0}, {"max_screen_radius": math.nan},
+                                  {"near_plane": 0.0}])
 def test_caps_must_be_positive(caps):
     with pytest.raises(GLError, match="must be a positive number"):
         RenderSettings(**caps)
@@ -120,7 +137,7 @@ def test_render_command_caps_splats_and_rejects_bad_values(tmp_path, capsys):
     # the area goes with the reach squared: (1.5 / ~3.3)^2 ~ 0.2 of the pixels
     assert 0.1 * covered["full"] < covered["capped"] < 0.35 * covered["full"]
     capsys.readouterr()
-    for bad in (["--max-std-dev", "0"], ["--max-screen-radius", "wide"]):
+    for bad in (["--max-std-dev", "0"], ["--max-screen-radius", "wide"], ["--near-plane", "-1"]):
         with pytest.raises(SystemExit):
             main(["render", str(ckpt), "--out", str(tmp_path / "x.png"), *view, *bad])
         err = capsys.readouterr().err

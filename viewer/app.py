@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from splat4d.constants import NEAR_PLANE
 from splat4d.errors import GLError, Splat4DError
 from splat4d.fileio import atomic_path, atomic_write_json
 from splat4d.model import CropBox, crop_mask
@@ -821,7 +822,8 @@ class ViewerApp:
                                      "background": list(self.settings.background), "mode": self.settings.mode,
                                      "splat_scale": self.settings.splat_scale, "sh_degree": self.settings.sh_degree,
                                      "max_std_dev": self.settings.max_std_dev,
-                                     "max_screen_radius": self.settings.max_screen_radius}
+                                     "max_screen_radius": self.settings.max_screen_radius,
+                                     "near_plane": self.settings.near_plane}
 
     def _next_screenshot_name(self) -> str:
         folder = Path(self.options.screenshot_dir)
@@ -1022,7 +1024,9 @@ class ViewerApp:
 
     @staticmethod
     def _draw_footprint_ui(s: RenderSettings) -> None:
-        """The footprint caps (`sorting.Footprint`): checkbox and slider each, off by default."""
+        """The footprint caps (`sorting.Footprint`; checkbox and slider each, off by default) and near plane."""
+        from imgui_bundle import imgui
+
         s.max_std_dev = _optional_slider(
             s.max_std_dev, "limit reach", "std-devs##reach", 1.0, 3.3, math.sqrt(8.0),
             "draw each splat out to at most this many std-devs: fewer pixels, harder edges\n"
@@ -1031,6 +1035,13 @@ class ViewerApp:
             s.max_screen_radius, "limit screen size", "of height##radius", 0.01, 1.0, 0.25,
             "cap each splat's radius at a share of the window height,\n"
             "against huge splats close to the camera filling the screen")
+        changed, near = imgui.slider_float("near plane", s.near_plane, 0.001, 1.0, "%.3f",
+                                           imgui.SliderFlags_.logarithmic)
+        if changed:  # (float32 round trip: only when moved)
+            s.near_plane = max(near, 0.001)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip(f"Gaussians closer than this are not drawn ({NEAR_PLANE:g} as the trainer);\n"
+                              "lower it to fly close to or into a model (with limit screen size)")
 
     def _draw_path_ui(self) -> None:
         from imgui_bundle import imgui

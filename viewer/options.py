@@ -103,8 +103,14 @@ def parse_positive(text: str) -> float:
 
 
 def add_footprint_args(parser: argparse.ArgumentParser) -> None:
-    """The performance guards on how far each splat reaches (`splat4d.viewer.sorting.Footprint`), off by default
-    (they change the image)."""
+    """Which splats reach the screen and how far (`splat4d.viewer.sorting.Footprint`): the near plane and the
+    performance guards, the trainer's by default (other values change the image)."""
+    from splat4d.constants import NEAR_PLANE
+
+    parser.add_argument("--near-plane", type=argtype(parse_positive), default=NEAR_PLANE, metavar="D",
+                        help=f"Gaussians closer to the camera than this depth are not drawn (default {NEAR_PLANE:g}, "
+                             "as the trainer); lower it to fly close to or into a model, best with "
+                             "--max-screen-radius")
     parser.add_argument("--max-std-dev", type=argtype(parse_positive), default=None, metavar="SIGMAS",
                         help="draw each splat out to at most this many std-devs: fewer pixels to shade, harder "
                              "edges on large splats (web viewers draw 2.83 = sqrt 8; 2.24 = sqrt 5 is their fast "

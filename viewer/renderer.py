@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from splat4d.cameras import Camera
-from splat4d.constants import ALPHA_THRESHOLD, EPS2D, TILE_SIZE
+from splat4d.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TILE_SIZE
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -109,6 +109,7 @@ class RenderSettings:
         max_std_dev: cap on how far a splat reaches, in std-devs (None = to the alpha cut-off, as the reference);
             see `Footprint`.
         max_screen_radius: cap on a splat's radius as a share of the image height (None = none).
+        near_plane: Gaussians at or in front of this camera depth are not drawn (the trainer's NEAR_PLANE, 0.2).
     """
 
     mode: str = "color"
@@ -121,6 +122,7 @@ class RenderSettings:
     primitive: str = "auto"
     max_std_dev: float | None = None
     max_screen_radius: float | None = None
+    near_plane: float = NEAR_PLANE
 
     def __post_init__(self) -> None:
         self.mode = parse_mode(self.mode)
@@ -141,9 +143,9 @@ class RenderSettings:
 
     @property
     def footprint(self) -> Footprint:
-        """How far the splats reach (`sorting.Footprint`): the splat scale and the two caps."""
+        """Which splats reach the screen and how far (`sorting.Footprint`): splat scale, caps and near plane."""
         return Footprint(self.splat_scale, math.inf if self.max_std_dev is None else self.max_std_dev,
-                         math.inf if self.max_screen_radius is None else self.max_screen_radius)
+                         math.inf if self.max_screen_radius is None else self.max_screen_radius, self.near_plane)
 
 
 @dataclass
@@ -589,6 +591,7 @@ class SplatRenderer:
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
                       u_scale=settings.splat_scale, u_max_radius=footprint_caps(settings.footprint, camera.height),
+                      u_near=settings.near_plane,
                       u_sh_degree=degree, u_sh=0,
                       u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 

@@ -152,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
     settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                               background=bg if bg is not None else ckpt.background, transparent=transparent,
                               composite=args.composite, value_range=args.map_range,
-                              max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius)
+                              max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius,
+                              near_plane=args.near_plane)
 
     trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")
     path = None

@@ -132,6 +132,17 @@ def test_info_reports_the_model(tmp_path, capsys):
     assert all(lo <= hi for lo, hi in zip(info["bounds_min"], info["bounds_max"]))
     assert main(["info", str(path)]) == 0
     assert "42" in capsys.readouterr().out
+    # sizes and opacities; one Gaussian blown up to a std-dev of e^3 ~ 20 is counted as large and named in the table
+    sd = info["std_dev"]
+    assert 0 < sd["median"] <= sd["p99"] <= sd["max"] and 0 < info["opacity"]["median"] <= info["opacity"]["p99"] < 1
+    with torch.no_grad():
+        model.log_scales[0] = 3.0
+    save_checkpoint(path, model, force=True)
+    assert main(["info", str(path), "--json"]) == 0
+    grown = json.loads(capsys.readouterr().out)
+    assert grown["large"] == info["large"] + 1 and grown["std_dev"]["max"] > 19.0
+    assert main(["info", str(path)]) == 0
+    assert "Gaussians with a std-dev over 10% of the bounds' diagonal" in capsys.readouterr().out
 
 
 def test_bytes_are_deterministic():

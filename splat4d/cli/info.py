@@ -23,6 +23,8 @@ def summarize(path, **options) -> dict:
     import glob
     from pathlib import Path
 
+    import numpy as np
+
     from ..formats import load_model
     from ..model import model_bounds
 
@@ -43,7 +45,36 @@ def summarize(path, **options) -> dict:
     }
     if model.kind == "keyframed":
         out["num_frames"] = model.num_frames
+    out.update(shape_stats(model, float(np.linalg.norm(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))))
     return out
+
+
+#: A Gaussian whose largest std-dev exceeds this share of the bounds' diagonal counts as large.
+LARGE_SHARE = 0.1
+
+
+def shape_stats(model, diagonal: float) -> dict:
+    """Sizes and opacities of the Gaussians: ``std_dev`` (each one's largest std-dev: median, 99th percentile,
+    max), ``opacity`` (at its temporal peak for native 4D models, at the middle key for keyframed ones: median,
+    99th percentile) and ``large`` (how many have a std-dev over LARGE_SHARE of the bounds' `diagonal`: the splats
+    that fill the screen up close, see view/render --max-screen-radius)."""
+    import numpy as np
+    import torch
+
+    if not len(model):
+        return {"std_dev": None, "opacity": None, "large": 0}
+    g = model.slice(0.5 * (model.time_range[0] + model.time_range[1]))  # 4D: the covariances do not change with t
+    with torch.no_grad():
+        std = torch.linalg.eigvalsh(g.covariances.double()).clamp_min(0.0)[:, -1].sqrt().numpy()
+        logits = getattr(model, "opacity_logits", None)
+        opacity = (torch.sigmoid(logits) if logits is not None else g.opacities).double().numpy()
+
+    def quantiles(x, *extra) -> dict:
+        out = {"median": float(np.median(x)), "p99": float(np.quantile(x, 0.99))}
+        return {**out, **{name: float(f(x)) for name, f in extra}}
+
+    return {"std_dev": quantiles(std, ("max", np.max)), "opacity": quantiles(opacity),
+            "large": int((std > LARGE_SHARE * diagonal).sum())}
 
 
 def _human(n: int) -> str:
@@ -68,6 +99,13 @@ def run(args: argparse.Namespace) -> int:
         ("bounds", f"{fmt(info['bounds_min'])} .. {fmt(info['bounds_max'])}"),
         ("SH degree", f"{info['sh_degree']} (time degree {info['sh_degree_t']})"),
     ]
+    if info["std_dev"]:
+        sd, op = info["std_dev"], info["opacity"]
+        rows += [("std-dev", f"median {sd['median']:.3g}, 99% {sd['p99']:.3g}, max {sd['max']:.3g} (largest axis)"),
+                 ("opacity", f"median {op['median']:.3g}, 99% {op['p99']:.3g}")]
+    if info["large"]:
+        rows.append(("large", f"{info['large']:,} Gaussians with a std-dev over {LARGE_SHARE:.0%} of the bounds' "
+                              "diagonal (they fill the screen up close: view/render --max-screen-radius)"))
     if info["rotation_convention"]:
         rows.append(("4D rotation", info["rotation_convention"]))
     if "num_frames" in info:

@@ -30,7 +30,7 @@ uniform float u_time;       // model time t
 uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time terms)
 uniform float u_scale;      // splat scale (multiplies every std-dev)
 uniform vec2 u_max_radius;  // footprint caps: std-devs, pixels along the major axis (sorting.footprint_caps)
-uniform float u_near;       // near plane (camera depth; sorting.Footprint.near, NEAR_PLANE by default)
+uniform float u_near;       // near plane (camera depth; sorting.Footprint.near_plane, NEAR_PLANE by default)
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
 uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|,

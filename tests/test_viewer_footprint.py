@@ -6,6 +6,7 @@ trainer's culls."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,9 @@ from splat4d.cameras import look_at
 from splat4d.checkpoint import save_checkpoint
 from splat4d.cli import main
 from splat4d.constants import EPS2D
+from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4d
+from splat4d.model import Gaussians4D
+from splat4d.sh import rgb_to_sh
 from splat4d.viewer.renderer import GLError, RenderSettings, SplatRenderer, headless_context
 from splat4d.viewer.sorting import Footprint
 from test_viewer_sort import RED, swapping_pair
@@ -72,6 +76,59 @@ def test_a_capped_splat_is_the_splat_inside_the_cap_and_nothing_outside(renderer
     assert capped[outside].max() == 0.0
     # the uncapped splat does reach past the cap (to ~3.3 std-devs), so the cap took something away
     assert (full[outside] > 0).sum() > 50 and (d[full > 0].max()) > 3.0 * sigma_px()
+
+
+def elongated_gaussian():
+    """One static Gaussian at the origin, 9x longer along world y than across (std-devs 0.05, 0.45, 0.05)."""
+    cov3 = torch.diag(torch.tensor([0.05, 0.45, 0.05], dtype=torch.float64) ** 2)[None]
+    scales, scale_t, q_l, q_r = decompose_covariance_4d(
+        covariance_4d_from_motion(cov3, torch.zeros(1, 3, dtype=torch.float64), torch.full((1,), 100.0)))
+    return Gaussians4D(means=torch.zeros(1, 3, dtype=torch.float64), t_means=torch.zeros(1, dtype=torch.float64),
+                       log_scales=scales.log(), log_t_scales=scale_t.log(), quats_l=q_l, quats_r=q_r,
+                       opacity_logits=torch.full((1,), 3.0, dtype=torch.float64),
+                       sh_dc=rgb_to_sh(torch.ones(1, 3, dtype=torch.float64))[:, None],
+                       sh_rest=torch.zeros(1, 0, 3, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("caps", [{"max_screen_radius": 0.3}, {"max_std_dev": 1.7}])
+@pytest.mark.parametrize("primitive", ["points", "quads"])
+def test_a_rotated_elongated_splat_is_cut_where_the_trainers_projection_says(caps, primitive):
+    """An elongated splat seen with the camera rolled by 30 degrees: the cut follows its 2D covariance from the
+    trainer's projection, the screen cap along the major axis (sqrt(lambda_1) px per std-dev) and not along an
+    image axis; the sort's box holds every drawn pixel."""
+    from splat4d.train.rasterize import project_gaussians
+
+    model = elongated_gaussian()
+    roll = math.radians(30)
+    cam = look_at((-DISTANCE, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, math.sin(roll), math.cos(roll)), fov_deg=30,
+                  width=SIZE, height=SIZE)
+    g = model.slice(0.0)
+    p = project_gaussians(g.means.double(), g.covariances.double(), cam)
+    xx, xy, yy = (float(v) for v in p.cov2d[0])
+    conic = np.linalg.inv([[xx, xy], [xy, yy]])
+    lambda_2, lambda_1 = np.linalg.eigvalsh([[xx, xy], [xy, yy]])
+    assert lambda_1 > 4 * lambda_2 and abs(xy) > 0.2 * math.sqrt(xx * yy)  # elongated, not along an image axis
+    rr = min(2.0 * math.log(float(g.opacities[0]) * 255.0),  # the cut-off, then the caps
+             caps.get("max_std_dev", math.inf) ** 2, (caps.get("max_screen_radius", math.inf) * SIZE) ** 2 / lambda_1)
+    y, x = np.mgrid[0:SIZE, 0:SIZE] + 0.5
+    d = np.stack([x - float(p.means2d[0, 0]), y - float(p.means2d[0, 1])], -1)
+    r2 = np.einsum("...i,ij,...j->...", d, conic, d)
+    r = SplatRenderer(headless_context(), model)
+    settings = RenderSettings(transparent=True, primitive=primitive)
+    r.render(cam, 0.0, settings)
+    full = r.read_display()[..., 3]
+    r.render(cam, 0.0, replace(settings, **caps))
+    capped = r.read_display()[..., 3]
+    box = r.sort(cam, 0.0, replace(settings, **caps).footprint).boxes[0]
+    r.release()
+    inside, outside = r2 < 0.97 * rr, r2 > 1.03 * rr
+    assert inside.sum() > 30 and (full[outside] > 0).sum() > 30
+    np.testing.assert_allclose(capped[inside], full[inside], atol=1e-5)  # (a quad's offsets are interpolated)
+    assert capped[outside].max() == 0.0
+    drawn_x, drawn_y = x[capped > 0], y[capped > 0]
+    assert np.all(np.abs(drawn_x - box[0]) <= box[2]) and np.all(np.abs(drawn_y - box[1]) <= box[3])
+    assert box[2] == pytest.approx(math.sqrt(rr * xx) + 1.0, rel=1e-3)
+    assert box[3] == pytest.approx(math.sqrt(rr * yy) + 1.0, rel=1e-3)
 
 
 def test_no_cap_changes_nothing_and_a_cap_beyond_the_cut_off_is_no_cap(renderer):

@@ -428,19 +428,23 @@ def test_a_lower_resolution_frame_is_stretched_over_the_viewport(model):
     assert (full < 0.9).any(axis=-1).mean() > 0.05  # and there is a picture
 
 
-def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model):
+@pytest.mark.parametrize("footprint", [{}, {"max_std_dev": 2.0}])
+def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model, footprint):
     """While the app changes resolution it draws with an order sorted for the previous size: its boxes, mapped to
     the new size, must still contain every pixel each Gaussian reaches (else points would clip and hidden-tile
-    skipping would drop visible Gaussians)."""
+    skipping would drop visible Gaussians), with a std-dev cap too, and for sizes that scale the two axes
+    differently (rounding). (Orders with a screen-radius cap are sorted again instead: the next test.)"""
     from splat4d.viewer.renderer import _boxes_for
     from splat4d.viewer.splats import to_arrays
-    from splat4d.viewer.sorting import depth_order
+    from splat4d.viewer.sorting import Footprint, depth_order
 
     arrays = to_arrays(model)
+    fp = Footprint(**footprint)
     full_cam = orbit(20, 30, 1.6, fov_deg=45, width=120, height=80)
-    for other in (full_cam.resized(30, 20), full_cam.resized(60, 40), full_cam.resized(240, 160)):
-        truth = depth_order(arrays, full_cam, 0.5)
-        mapped_order = depth_order(arrays, other, 0.5)
+    for other in (full_cam.resized(30, 20), full_cam.resized(60, 40), full_cam.resized(240, 160),
+                  full_cam.resized(47, 40), full_cam.resized(120, 31)):
+        truth = depth_order(arrays, full_cam, 0.5, fp)
+        mapped_order = depth_order(arrays, other, 0.5, fp)
         mapped = _boxes_for(mapped_order, full_cam)
         # compare the Gaussians both orders keep, by index
         common, a, b = np.intersect1d(truth.order, mapped_order.order, return_indices=True)
@@ -452,6 +456,30 @@ def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model
         assert np.all(m[:, 1] + m[:, 3] >= t[:, 1] + t[:, 3] - 1e-3)
         assert np.median(m[:, 2] / t[:, 2]) < 2.5  # conservative, not absurdly so
     assert _boxes_for(truth, full_cam) is truth.boxes
+
+
+def test_an_order_of_another_footprint_or_screen_capped_at_another_size_is_sorted_again(model):
+    """The app draws with its newest finished sort; one made with other caps or near plane, or with a screen-radius
+    cap at another resolution, cannot bound this frame's splats, so `render` sorts again (and draws what a fresh
+    sort draws); an uncapped order of another size is drawn as it is (its boxes rescaled)."""
+    cam = orbit(20, 30, 1.6, fov_deg=45, width=120, height=80)
+    small = cam.resized(60, 40)
+    capped = RenderSettings(transparent=True, max_screen_radius=0.02)
+    r = SplatRenderer(headless_context(), model)
+    for settings, old_camera, old_settings, resorts in (
+            (capped, cam, RenderSettings(), True),  # a cap came on
+            (RenderSettings(), cam, capped, True),  # ... went off
+            (RenderSettings(near_plane=1.5), cam, RenderSettings(), True),  # the near plane moved
+            (capped, small, capped, True),  # the resolution changed under a screen cap
+            (RenderSettings(transparent=True), small, RenderSettings(), False)):  # ... with no cap: rescaled
+        old = r.sort(old_camera, 0.5, old_settings.footprint)
+        stats = r.render(cam, 0.5, settings, order=old)
+        assert stats.resorted == resorts
+        img = r.read_display()
+        fresh = r.render(cam, 0.5, settings)
+        assert stats.visible == fresh.visible
+        np.testing.assert_allclose(img, r.read_display(), atol=1e-5)
+    r.release()
 
 
 def test_render_without_a_checkpoint_renders_the_bundled_sample(tmp_path):

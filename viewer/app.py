@@ -913,7 +913,7 @@ class ViewerApp:
         imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
         imgui.text(f"sort {st.sort_ms:5.1f} ms  draw {st.frame.draw_ms + st.frame.upload_ms:5.1f} ms")
         imgui.text(f"visible {st.frame.visible:,} / {st.frame.total:,} Gaussians")
-        why = "moving" if st.moving else "playing" if st.playing else None
+        why = "moving" if st.moving else "animating" if st.playing else None
         imgui.text(f"resolution {100 * st.scale:3.0f}%" + (f"  ({why})" if why and st.scale < 1 else ""))
 
         imgui.separator_text("Time")
@@ -996,7 +996,10 @@ class ViewerApp:
                 "lifespan": f"time each Gaussian is drawn: blue = brief, red = the whole time range ({hi:.3g})",
                 "fade": "temporal opacity factor: red = at its peak (1), blue = fading in or out",
             }[s.mode])
-        _, s.splat_scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f")
+        changed, scale = imgui.slider_float("splat scale", s.splat_scale, 0.05, 3.0, "%.2f",
+                                            imgui.SliderFlags_.always_clamp)
+        if changed:  # only then: the slider's float32 round trip would change a value given on the command line
+            s.splat_scale = scale
         self._draw_footprint_ui(s)
         max_deg = self.renderer.splats.sh_degree if self.renderer.splats is not None else 0
         deg = max_deg if s.sh_degree is None else min(s.sh_degree, max_deg)
@@ -1036,9 +1039,9 @@ class ViewerApp:
             "cap each splat's radius at a share of the window height,\n"
             "against huge splats close to the camera filling the screen")
         changed, near = imgui.slider_float("near plane", s.near_plane, 0.001, 1.0, "%.3f",
-                                           imgui.SliderFlags_.logarithmic)
-        if changed:  # (float32 round trip: only when moved)
-            s.near_plane = max(near, 0.001)
+                                           imgui.SliderFlags_.logarithmic | imgui.SliderFlags_.always_clamp)
+        if changed:
+            s.near_plane = near
         if imgui.is_item_hovered():
             imgui.set_tooltip(f"Gaussians closer than this are not drawn ({NEAR_PLANE:g} as the trainer);\n"
                               "lower it to fly close to or into a model (with limit screen size)")
@@ -1243,7 +1246,8 @@ def _optional_slider(value: float | None, label: str, slider: str, lo: float, hi
         imgui.set_tooltip(tooltip)
     if value is not None:
         imgui.same_line()
-        changed, moved = imgui.slider_float(slider, value, lo, hi, "%.2f")
-        if changed:  # only then: the slider's float32 round trip would change a value typed on the command line
-            value = max(moved, lo)
+        # (clamped: a value typed with Ctrl+click stays in range, so the settings stay valid)
+        changed, moved = imgui.slider_float(slider, value, lo, hi, "%.2f", imgui.SliderFlags_.always_clamp)
+        if changed:  # only then: the slider's float32 round trip would change a value given on the command line
+            value = moved
     return value

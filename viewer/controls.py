@@ -261,19 +261,19 @@ class Resolution:
         return out
 
     def changing(self, moving: bool, playing: bool) -> bool:
-        """Whether a frame whose camera `moving` and whose model time `playing` (changed since the frame before)
-        may be drawn at a lower resolution, as `choose` takes it."""
+        """Whether a frame whose camera is `moving` and whose model time is `playing` (each: changed since the frame
+        before; scrubbing and frame steps change the time too) may be drawn at a lower resolution (`choose`)."""
         return moving or (playing and self.while_playing)
 
-    def choose(self, moving: bool, width: int, height: int) -> float:
-        """The scale of the next frame in a window of `width` x `height` pixels; `moving`: the view is changing
+    def choose(self, changing: bool, width: int, height: int) -> float:
+        """The scale of the next frame in a window of `width` x `height` pixels; `changing`: the view is changing
         (`changing`)."""
         top = self.step_of(self.scale)
         if (width, height) != self._window:
             if self._window != (0, 0):  # measured in another window size
                 self._measured.clear()
             self._window = (width, height)
-        if not (moving and self.adaptive):
+        if not (changing and self.adaptive):
             self._current = top
             return top
         steps = [s for s in RESOLUTION_STEPS if s <= top]

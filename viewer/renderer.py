@@ -134,18 +134,17 @@ class RenderSettings:
         if len(bg) != 3 or not all(np.isfinite(bg)):
             raise GLError(f"background must be 3 finite numbers, got {self.background!r}")
         self.background = bg  # type: ignore[assignment]
-        if not (np.isfinite(self.splat_scale) and self.splat_scale > 0):
-            raise GLError(f"splat scale must be positive, got {self.splat_scale}")
-        try:
-            self.footprint
-        except ValueError as exc:
-            raise GLError(str(exc)) from None
+        self.footprint  # checks the splat scale, the caps and the near plane
 
     @property
     def footprint(self) -> Footprint:
-        """Which splats reach the screen and how far (`sorting.Footprint`): splat scale, caps and near plane."""
-        return Footprint(self.splat_scale, math.inf if self.max_std_dev is None else self.max_std_dev,
-                         math.inf if self.max_screen_radius is None else self.max_screen_radius, self.near_plane)
+        """Which splats reach the screen and how far (`sorting.Footprint`): splat scale, caps and near plane.
+        Raises GLError (one line) on a bad value, e.g. one typed into the app's panel."""
+        try:
+            return Footprint(self.splat_scale, math.inf if self.max_std_dev is None else self.max_std_dev,
+                             math.inf if self.max_screen_radius is None else self.max_screen_radius, self.near_plane)
+        except ValueError as exc:
+            raise GLError(str(exc)) from None
 
 
 @dataclass
@@ -399,7 +398,7 @@ class SplatRenderer:
         start = time.perf_counter()
         splats = self.splats_at(t)
         stats.upload_ms = (time.perf_counter() - start) * 1e3
-        if order is None:
+        if order is None or _needs_sort(order, camera, settings.footprint):
             before = self._order
             order = self.sort(camera, t, settings.footprint)
             stats.resorted = order is not before
@@ -665,13 +664,25 @@ class SplatRenderer:
             self._targets = None
 
 
+def _needs_sort(order: SortResult, camera: Camera, footprint: Footprint) -> bool:
+    """Whether `order` (e.g. the app's newest finished sort) cannot be drawn for `camera` with `footprint`: it was
+    sorted with another footprint (just after a cap or the near plane changed: its boxes and culls bound nothing
+    here), or with a screen-radius cap for another image size (`_boxes_for` cannot rescale those boxes)."""
+    key = order.key
+    if key is None:
+        return False
+    return key.footprint != footprint or (math.isfinite(footprint.max_screen_radius)
+                                          and key.intrinsics[4:] != (camera.width, camera.height))
+
+
 def _boxes_for(order: SortResult, camera: Camera) -> np.ndarray:
     """The screen boxes of `order` (`SortResult.boxes`) in the pixels of `camera`'s image when the order was sorted
     for an image of another resolution (the app lowers it while the view moves): centres map through the two
     cameras' intrinsics; a half-size h = sqrt(rr (s^2 + EPS2D)) + 1 px (`sorting._depth_key`, s the footprint's
     std-dev in pixels) becomes at most k (h - 1) + 1 + sqrt(rr EPS2D (1 - k^2)) when s scales by k (the EPS2D blur
-    does not scale; rr <= 2 ln(1 / ALPHA_THRESHOLD)); areas and masses scale with kx ky. Same-size orders are
-    returned as they are."""
+    does not scale; rr <= 2 ln(1 / ALPHA_THRESHOLD)); areas and masses scale with kx ky. A std-dev cap leaves rr
+    alone; a screen-radius cap does not (it reshapes a splat whose major axis changes with kx / ky), so `render`
+    sorts such orders again instead. Same-size orders are returned as they are."""
     key = order.key
     if key is None or key.intrinsics[4:] == (camera.width, camera.height):
         return order.boxes

@@ -3,7 +3,7 @@
 The depth of Gaussian i at time t is the camera-space z of its conditional mean mu_i + v_i (t - mu_t,i), the same
 point the vertex shader projects. A Gaussian is dropped from the order (not drawn at all) when it cannot cover a
 pixel at this (camera, t): its temporal marginal is <= TEMPORAL_CULL, its opacity times that marginal is below
-ALPHA_THRESHOLD, its mean is at or in front of the near plane (`Footprint.near`, NEAR_PLANE by default), or a
+ALPHA_THRESHOLD, its mean is at or in front of the near plane (`Footprint.near_plane`, NEAR_PLANE by default), or a
 conservative bound of its footprint misses the image. Survivors are argsorted by decreasing depth. Each also gets its screen box (from its projected 2D covariance,
 computed as splat_preprocess.glsl and the trainer's rasterizer do, and its opacity at t), which the renderer uses to
 skip Gaussians hidden behind pixels that are already opaque and to choose between point and quad splats.
@@ -43,7 +43,7 @@ class Footprint:
     lies at or in front of NEAR_PLANE (camera depth) is not drawn, and each splat reaches out to where its alpha
     falls below ALPHA_THRESHOLD (about 3.3 std-devs for an opaque Gaussian). The two caps are the performance guards
     of web viewers (their maxStdDev, and a screen-radius cap against the fill-rate collapse of huge splats close to
-    the camera), off by default since they change the image; so is a nearer `near` (to fly close to or into a
+    the camera), off by default since they change the image; so is a nearer `near_plane` (to fly close to or into a
     model without its Gaussians vanishing 0.2 units ahead; best with a screen-radius cap).
 
     Attributes:
@@ -52,19 +52,24 @@ class Footprint:
             2.83; sqrt(5), 2.24, is their fast setting).
         max_screen_radius: largest reach along the major axis, as a share of the image height (so the same at
             every resolution), inf = none.
-        near: camera depth at or before which Gaussians are not drawn (world units).
+        near_plane: camera depth at or before which Gaussians are not drawn (world units).
     """
 
     scale: float = 1.0
     max_std_dev: float = math.inf
     max_screen_radius: float = math.inf
-    near: float = NEAR_PLANE
+    near_plane: float = NEAR_PLANE
 
     def __post_init__(self) -> None:
-        for name in ("scale", "max_std_dev", "max_screen_radius", "near"):
-            value = float(getattr(self, name))
-            if not value > 0 or (name in ("scale", "near") and math.isinf(value)):
-                raise ValueError(f"{name.replace('_', ' ')} must be a positive number, got {getattr(self, name)}")
+        for name in ("scale", "max_std_dev", "max_screen_radius", "near_plane"):
+            given = getattr(self, name)
+            try:
+                value = float(given)
+            except (TypeError, ValueError):
+                value = math.nan
+            if not value > 0 or (name in ("scale", "near_plane") and math.isinf(value)):
+                what = "splat scale" if name == "scale" else name.replace("_", " ")
+                raise ValueError(f"{what} must be a positive number, got {given}")
             object.__setattr__(self, name, value)
 
     @property
@@ -256,7 +261,7 @@ def depth_order(splats: SplatArrays, camera: Camera, t: float, footprint: Footpr
         kernel = _depth_keys_parallel if parallel else _depth_keys
         kernel(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
                float(camera.height), footprint.scale, footprint_caps(footprint, camera.height), _MAX_EXPONENT,
-               ALPHA_THRESHOLD, MAX_ALPHA, footprint.near, EPS2D, FRUSTUM_CLAMP, neg, boxes)
+               ALPHA_THRESHOLD, MAX_ALPHA, footprint.near_plane, EPS2D, FRUSTUM_CLAMP, neg, boxes)
     return _finish(neg, boxes, SortKey.of(camera, t, footprint), start)
 
 
@@ -274,7 +279,7 @@ def _finish(neg_depth: np.ndarray, boxes: np.ndarray, key: SortKey, start: float
         k = sorted_depth.shape[0] - 1
         depth_range = (float(sorted_depth[int(0.98 * k)]), float(sorted_depth[int(0.02 * k)]))
     else:
-        depth_range = (key.footprint.near, 1.0)
+        depth_range = (key.footprint.near_plane, 1.0)
     hideable = hideable_fraction(boxes, key.intrinsics[4], key.intrinsics[5])
     return SortResult(order=order, boxes=boxes, depth_range=depth_range, key=key,
                       ms=(time.perf_counter() - start) * 1e3, hideable=hideable)

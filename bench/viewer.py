@@ -100,7 +100,7 @@ def main() -> None:
 
     add_footprint_args(ap)  # the GL side only: the rasterizer draws every splat out to its cut-off
     args = ap.parse_args()
-    caps = {k: getattr(args, k) for k in ("max_std_dev", "max_screen_radius", "near_plane")
+    caps = {k: getattr(args, k) for k in ("max_std_dev", "max_screen_radius", "near_plane", "temporal_fade")
             if getattr(args, k) != ap.get_default(k)}
 
     from splat4d.viewer.renderer import headless_context

@@ -31,6 +31,7 @@ uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time te
 uniform float u_scale;      // splat scale (multiplies every std-dev)
 uniform vec2 u_max_radius;  // footprint caps: std-devs, pixels along the major axis (sorting.footprint_caps)
 uniform float u_near;       // near plane (camera depth; sorting.Footprint.near_plane, NEAR_PLANE by default)
+uniform bool u_smooth_fade; // temporal fade "smooth" (splat4d.covariance.temporal_factor), else "cut"
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
 uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|,
@@ -116,7 +117,9 @@ void main() {
     float dt = u_time - a_mean_t.w;
     float marginal = exp(-dt * dt * a_motion.w);
     if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
-    float opacity = a_cov_b.z * marginal;
+    // splat4d.covariance.temporal_factor: "smooth" fades the factor to 0 at the cull instead of cutting it
+    float factor = u_smooth_fade ? marginal * smoothstep(TEMPORAL_CULL, 2.0 * TEMPORAL_CULL, marginal) : marginal;
+    float opacity = a_cov_b.z * factor;
     if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
     vec3 mean = a_mean_t.xyz + a_motion.xyz * dt;
 

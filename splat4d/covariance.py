@@ -154,6 +154,27 @@ def temporal_marginal(t: float | Tensor, t_means: Tensor, var_t: Tensor) -> Tens
     return torch.exp(-0.5 * dt * dt / var_t)
 
 
+#: Temporal fades (`temporal_factor`): "cut" (the reference: the marginal as it is, the Gaussian dropped once it
+#: is <= TEMPORAL_CULL, so its opacity jumps from 0.05 of its peak to 0) and "smooth" (the same factor faded to 0
+#: over the marginal's last doubling before the cull, so nothing pops).
+TEMPORAL_FADES: tuple[str, ...] = ("cut", "smooth")
+
+
+def temporal_factor(marginal: Tensor, fade: str = "cut") -> Tensor:
+    """What multiplies a Gaussian's opacity at a time where its `temporal_marginal` is `marginal`: the marginal
+    (fade "cut", the reference) or, with "smooth", marginal * smoothstep(TEMPORAL_CULL, 2 TEMPORAL_CULL, marginal),
+    which is 0 at the cull and the marginal itself from twice the cull up (splat_preprocess.glsl mirrors it).
+    Either way it is 0 where the marginal is <= TEMPORAL_CULL."""
+    if fade not in TEMPORAL_FADES:
+        raise ValueError(f"unknown temporal fade {fade!r}; expected one of {', '.join(TEMPORAL_FADES)}")
+    m = torch.as_tensor(marginal)
+    factor = m * (m > TEMPORAL_CULL)
+    if fade == "smooth":
+        x = ((m - TEMPORAL_CULL) / TEMPORAL_CULL).clamp(0.0, 1.0)
+        factor = factor * x * x * (3.0 - 2.0 * x)
+    return factor
+
+
 def visible_span(var_t: Tensor, cull: float | None = None) -> Tensor:
     """``[N]`` how long each Gaussian is drawn: the width of the time window where its `temporal_marginal` exceeds
     `cull` (default TEMPORAL_CULL, where slices stop drawing it), 2 sqrt(2 ln(1 / cull) var_t), in model time

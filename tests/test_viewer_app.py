@@ -89,7 +89,8 @@ def headless_of(report: dict, model) -> np.ndarray:
                                                                 splat_scale=shot["splat_scale"],
                                                                 max_std_dev=shot["max_std_dev"],
                                                                 max_screen_radius=shot["max_screen_radius"],
-                                                                near_plane=shot["near_plane"]))
+                                                                near_plane=shot["near_plane"],
+                                                                temporal_fade=shot["temporal_fade"]))
     return np.round(np.clip(img[..., :3], 0, 1) * 255) / 255
 
 

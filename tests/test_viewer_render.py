@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+import torch
 
 from splat4d.cameras import orbit
 from splat4d.checkpoint import save_checkpoint
@@ -480,6 +481,45 @@ def test_an_order_of_another_footprint_or_screen_capped_at_another_size_is_sorte
         assert stats.visible == fresh.visible
         np.testing.assert_allclose(img, r.read_display(), atol=1e-5)
     r.release()
+
+
+def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest():
+    """One Gaussian with a short time window (var_t 0.01: marginal exp(-t^2 / 0.02)), seen head-on at several
+    times: with the smooth fade its alpha is the cut one's times smoothstep(0.05, 0.1, marginal)
+    (`covariance.temporal_factor`), the same from a marginal of 0.1 up, and 0 from the cull on, like the cut."""
+    from splat4d.covariance import (TEMPORAL_FADES, covariance_4d_from_motion, decompose_covariance_4d,
+                                    temporal_factor, temporal_marginal)
+    from splat4d.model import Gaussians4D
+    from splat4d.sh import rgb_to_sh
+
+    cov3 = torch.eye(3, dtype=torch.float64)[None] * 0.1 ** 2
+    var_t = torch.full((1,), 0.01, dtype=torch.float64)
+    scales, scale_t, q_l, q_r = decompose_covariance_4d(
+        covariance_4d_from_motion(cov3, torch.zeros(1, 3, dtype=torch.float64), var_t))
+    model = Gaussians4D(means=torch.zeros(1, 3, dtype=torch.float64), t_means=torch.zeros(1, dtype=torch.float64),
+                        log_scales=scales.log(), log_t_scales=scale_t.log(), quats_l=q_l, quats_r=q_r,
+                        opacity_logits=torch.zeros(1, dtype=torch.float64),  # opacity 0.5
+                        sh_dc=rgb_to_sh(torch.ones(1, 3, dtype=torch.float64))[:, None],
+                        sh_rest=torch.zeros(1, 0, 3, dtype=torch.float64), time_range=(-1.0, 1.0))
+    cam = orbit(0, 0, 3.0, fov_deg=30, width=33, height=33)  # the Gaussian on the centre pixel's centre
+    r = SplatRenderer(headless_context(), model)
+
+    def centre_alpha(t: float, fade: str) -> float:
+        r.render(cam, t, RenderSettings(transparent=True, temporal_fade=fade))
+        return float(r.read_display()[16, 16, 3])
+
+    for t in (0.1, 0.2, 0.224, 0.232, 0.25, 0.3):
+        m = temporal_marginal(t, model.t_means, var_t)
+        cut, smooth = centre_alpha(t, "cut"), centre_alpha(t, "smooth")
+        want = cut * float(temporal_factor(m, "smooth") / temporal_factor(m, "cut")) if m > 0.05 else 0.0
+        assert smooth == pytest.approx(want, rel=1e-4, abs=1e-7), (t, float(m))
+        assert (cut > 0) == bool(m > 0.05) and (smooth == cut) == bool(m >= 0.1 or m <= 0.05)
+    # the cut drops a Gaussian from 0.05 of its peak alpha to nothing; the smooth fade is nearly 0 there already
+    assert centre_alpha(0.2445, "cut") > 0.02 and centre_alpha(0.2445, "smooth") < 1e-3
+    r.release()
+    assert TEMPORAL_FADES == ("cut", "smooth")
+    with pytest.raises(Exception, match="unknown temporal fade"):
+        RenderSettings(temporal_fade="soft")
 
 
 def test_render_without_a_checkpoint_renders_the_bundled_sample(tmp_path):

@@ -823,7 +823,8 @@ class ViewerApp:
                                      "splat_scale": self.settings.splat_scale, "sh_degree": self.settings.sh_degree,
                                      "max_std_dev": self.settings.max_std_dev,
                                      "max_screen_radius": self.settings.max_screen_radius,
-                                     "near_plane": self.settings.near_plane}
+                                     "near_plane": self.settings.near_plane,
+                                     "temporal_fade": self.settings.temporal_fade}
 
     def _next_screenshot_name(self) -> str:
         folder = Path(self.options.screenshot_dir)
@@ -1027,7 +1028,8 @@ class ViewerApp:
 
     @staticmethod
     def _draw_footprint_ui(s: RenderSettings) -> None:
-        """The footprint caps (`sorting.Footprint`; checkbox and slider each, off by default) and near plane."""
+        """The footprint caps (`sorting.Footprint`; checkbox and slider each, off by default), near plane and
+        temporal fade."""
         from imgui_bundle import imgui
 
         s.max_std_dev = _optional_slider(
@@ -1045,6 +1047,12 @@ class ViewerApp:
         if imgui.is_item_hovered():
             imgui.set_tooltip(f"Gaussians closer than this are not drawn ({NEAR_PLANE:g} as the trainer);\n"
                               "lower it to fly close to or into a model (with limit screen size)")
+        changed, smooth = imgui.checkbox("smooth temporal fade", s.temporal_fade == "smooth")
+        if changed:
+            s.temporal_fade = "smooth" if smooth else "cut"
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("fade Gaussians out at the end of their time window instead of dropping them\n"
+                              "at 0.05 of their opacity (the trainer's cut, a small pop as time plays)")
 
     def _draw_path_ui(self) -> None:
         from imgui_bundle import imgui

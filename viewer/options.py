@@ -111,6 +111,10 @@ def add_footprint_args(parser: argparse.ArgumentParser) -> None:
                         help=f"Gaussians closer to the camera than this depth are not drawn (default {NEAR_PLANE:g}, "
                              "as the trainer); lower it to fly close to or into a model, best with "
                              "--max-screen-radius")
+    parser.add_argument("--temporal-fade", choices=("cut", "smooth"), default="cut",
+                        help="how a Gaussian leaves the scene at the end of its time window: cut (default, the "
+                             "trainer's: dropped once its temporal opacity falls to 0.05 of its peak, a small "
+                             "pop) or smooth (faded to 0 over its last doubling, no pop)")
     parser.add_argument("--max-std-dev", type=argtype(parse_positive), default=None, metavar="SIGMAS",
                         help="draw each splat out to at most this many std-devs: fewer pixels to shade, harder "
                              "edges on large splats (web viewers draw 2.83 = sqrt 8; 2.24 = sqrt 5 is their fast "

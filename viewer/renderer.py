@@ -33,6 +33,7 @@ import numpy as np
 
 from splat4d.cameras import Camera
 from splat4d.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TILE_SIZE
+from splat4d.covariance import TEMPORAL_FADES
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -110,6 +111,9 @@ class RenderSettings:
             see `Footprint`.
         max_screen_radius: cap on a splat's radius as a share of the image height (None = none).
         near_plane: Gaussians at or in front of this camera depth are not drawn (the trainer's NEAR_PLANE, 0.2).
+        temporal_fade: one of `splat4d.covariance.TEMPORAL_FADES`: "cut" (the reference: a Gaussian drops out once
+            its temporal marginal falls to 0.05) or "smooth" (faded out over the marginal's last doubling, so that
+            nothing pops as time plays).
     """
 
     mode: str = "color"
@@ -123,9 +127,12 @@ class RenderSettings:
     max_std_dev: float | None = None
     max_screen_radius: float | None = None
     near_plane: float = NEAR_PLANE
+    temporal_fade: str = "cut"
 
     def __post_init__(self) -> None:
         self.mode = parse_mode(self.mode)
+        if self.temporal_fade not in TEMPORAL_FADES:
+            raise GLError(f"unknown temporal fade {self.temporal_fade!r}; expected one of {', '.join(TEMPORAL_FADES)}")
         if self.primitive not in PRIMITIVES:
             raise GLError(f"unknown splat primitive {self.primitive!r}; expected one of {', '.join(PRIMITIVES)}")
         if self.composite not in COMPOSITE_ORDERS:
@@ -590,7 +597,7 @@ class SplatRenderer:
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
                       u_scale=settings.splat_scale, u_max_radius=footprint_caps(settings.footprint, camera.height),
-                      u_near=settings.near_plane,
+                      u_near=settings.near_plane, u_smooth_fade=settings.temporal_fade == "smooth",
                       u_sh_degree=degree, u_sh=0,
                       u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 

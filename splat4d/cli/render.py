@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
                               background=bg if bg is not None else ckpt.background, transparent=transparent,
                               composite=args.composite, value_range=args.map_range,
                               max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius,
-                              near_plane=args.near_plane)
+                              near_plane=args.near_plane, temporal_fade=args.temporal_fade)
 
     trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")
     path = None

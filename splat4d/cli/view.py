@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
                           composite=args.composite, background=bg or (0.0, 0.0, 0.0),
                           max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius,
-                          near_plane=args.near_plane)
+                          near_plane=args.near_plane, temporal_fade=args.temporal_fade)
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, play_path=args.play_path,

@@ -285,3 +285,42 @@ def nerf_frame_camera(frame: dict, meta: dict, width: int, height: int) -> Camer
                       float(get("cy", height / 2.0)), width, height)
     except (TypeError, ValueError) as exc:
         raise CameraError(f"invalid intrinsics ({exc})") from None
+
+
+# --- the cameras of a training dataset -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DatasetView:
+    """One camera of a training dataset: its name (image path), the camera and the frame's scene time."""
+
+    name: str
+    camera: Camera
+    time: float
+
+
+def views_to_json(views: Sequence[DatasetView]) -> dict:
+    """A compact JSON form of dataset views (what a checkpoint records of the data it was trained on): each
+    distinct camera once (``cameras``: OpenCV camera-to-world rows 0-2, fx, fy, cx, cy, width, height) and each
+    view as ``[camera index, time, name]`` (``views``), since a multi-view video repeats every camera per frame."""
+    cameras: list[dict] = []
+    index: dict[tuple, int] = {}
+    rows = []
+    for v in views:
+        c = v.camera
+        key = (np.asarray(c.c2w, np.float64)[:3].tobytes(), c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        if key not in index:
+            index[key] = len(cameras)
+            cameras.append({"c2w": [float(x) for x in np.asarray(c.c2w, np.float64)[:3].reshape(-1)],
+                            "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy, "width": int(c.width),
+                            "height": int(c.height)})
+        rows.append([index[key], float(v.time), str(v.name)])
+    return {"cameras": cameras, "views": rows}
+
+
+def views_from_json(obj: dict) -> list[DatasetView]:
+    """The dataset views of `views_to_json`'s form; raises CameraError (one line) on a malformed one."""
+    try:
+        cameras = [Camera(np.asarray(c["c2w"], np.float64).reshape(3, 4), c["fx"], c["fy"], c["cx"], c["cy"],
+                          int(c["width"]), int(c["height"])) for c in obj["cameras"]]
+        return [DatasetView(str(name), cameras[int(i)], float(t)) for i, t, name in obj["views"]]
+    except (KeyError, TypeError, ValueError, IndexError, CameraError) as exc:
+        raise CameraError(f"malformed recorded cameras ({type(exc).__name__}: {exc})") from None

@@ -9,10 +9,13 @@ Layout
     {"format": "splat4d", "format_version": 1, "kind": "gaussians4d" | "keyframed",
      "model": {"sh_degree": .., "sh_degree_t": .., "time_range": [t0, t1], "rotation_convention": ..},
      "background": [r, g, b], "provenance": {...}, "training": {...},
+     "cameras": {"cameras": [...], "views": [...]},   (optional)
      "checksums": {"<tensor>": <crc32 of its bytes>}}
 
   ``provenance`` says where the model came from (tool, source file, what an importer assumed);
-  ``training`` holds the settings of the run that produced it.
+  ``training`` holds the settings of the run that produced it; ``cameras`` the cameras of the images it was trained
+  on (`splat4d.cameras.views_to_json`: each distinct camera once, each view as camera index, time, name), so that
+  viewers can snap to them and render along them without the dataset. Older checkpoints have none.
 
 Writes are atomic (temp file + rename). Loading checks the version, the metadata, a CRC-32 per tensor (so a
 corrupted byte is caught, not rendered), shapes, dtypes and finiteness, and raises `CheckpointError` with one line
@@ -31,7 +34,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from .errors import CheckpointError, ModelError
+from .cameras import views_from_json, views_to_json
+from .errors import CameraError, CheckpointError, ModelError
 from .fileio import atomic_write_bytes
 from .model import MODEL_KINDS, Model
 
@@ -51,6 +55,8 @@ class Checkpoint:
     training: dict[str, Any] = field(default_factory=dict)
     format_version: int = FORMAT_VERSION
     path: Path | None = None
+    #: the cameras of the training images (`splat4d.cameras.DatasetView`), empty when none were recorded
+    views: list = field(default_factory=list)
 
 
 def _crc(t: torch.Tensor) -> int:
@@ -58,7 +64,7 @@ def _crc(t: torch.Tensor) -> int:
 
 
 def checkpoint_bytes(model: Model, background=(0.0, 0.0, 0.0), provenance: dict | None = None,
-                     training: dict | None = None) -> bytes:
+                     training: dict | None = None, views=None) -> bytes:
     """Serialise to the bytes of a checkpoint file (nothing touches disk)."""
     from safetensors.torch import save
 
@@ -71,15 +77,18 @@ def checkpoint_bytes(model: Model, background=(0.0, 0.0, 0.0), provenance: dict 
         "format": FORMAT_NAME, "format_version": FORMAT_VERSION, "kind": model.kind,
         "model": model.metadata(), "background": bg,
         "provenance": provenance or {}, "training": training or {},
+        **({"cameras": views_to_json(views)} if views else {}),
         "checksums": {k: _crc(v) for k, v in tensors.items()},
     }
     return save(tensors, metadata={METADATA_KEY: json.dumps(meta)})
 
 
 def save_checkpoint(path: str | os.PathLike, model: Model, background=(0.0, 0.0, 0.0),
-                    provenance: dict | None = None, training: dict | None = None, force: bool = False) -> Path:
-    """Write `model` to `path` atomically; refuses to overwrite an existing file unless `force`."""
-    return atomic_write_bytes(path, checkpoint_bytes(model, background, provenance, training), force)
+                    provenance: dict | None = None, training: dict | None = None, force: bool = False,
+                    views=None) -> Path:
+    """Write `model` to `path` atomically; refuses to overwrite an existing file unless `force`. `views`: the
+    training cameras to record (`splat4d.cameras.DatasetView`s)."""
+    return atomic_write_bytes(path, checkpoint_bytes(model, background, provenance, training, views), force)
 
 
 def read_metadata(path: str | os.PathLike) -> dict:
@@ -157,4 +166,15 @@ def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu")
     if not (isinstance(bg, list) and len(bg) == 3 and all(isinstance(x, (int, float)) for x in bg)):
         raise CheckpointError(f"{path}: background must be 3 numbers, got {bg!r}")
     return Checkpoint(model=model, background=tuple(float(x) for x in bg), provenance=meta.get("provenance", {}),
-                      training=meta.get("training", {}), format_version=version, path=path)
+                      training=meta.get("training", {}), format_version=version, path=path,
+                      views=recorded_views(meta, path))
+
+
+def recorded_views(meta: dict, path: Path | str = "checkpoint") -> list:
+    """The training cameras a checkpoint's metadata records (`splat4d.cameras.DatasetView`s; [] when none)."""
+    if "cameras" not in meta:
+        return []
+    try:
+        return views_from_json(meta["cameras"])
+    except CameraError as exc:
+        raise CheckpointError(f"{path}: {exc}") from None

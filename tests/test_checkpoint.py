@@ -145,6 +145,37 @@ def test_info_reports_the_model(tmp_path, capsys):
     assert "Gaussians with a std-dev over 10% of the bounds' diagonal" in capsys.readouterr().out
 
 
+def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path):
+    """A multi-view video repeats each camera per frame: the checkpoint keeps each camera once and each view as
+    (camera index, time, name); the views read back exactly; a checkpoint without them has none; a malformed
+    record is a one-line error."""
+    import numpy as np
+
+    from splat4d.cameras import DatasetView, orbit, views_to_json
+
+    cams = [orbit(20, a, 3.0, fov_deg=40, width=64, height=48) for a in (0, 90)]
+    views = [DatasetView(f"v{v}/f{f}", cams[v], f / 2) for f in range(3) for v in range(2)]
+    record = views_to_json(views)
+    assert len(record["cameras"]) == 2 and len(record["views"]) == 6
+    model = random_model(5, "current")
+    path = save_checkpoint(tmp_path / "m.safetensors", model, views=views)
+    back = load_checkpoint(path).views
+    assert [(v.name, v.time) for v in back] == [(v.name, v.time) for v in views]
+    for got, want in zip(back, views):
+        np.testing.assert_array_equal(got.camera.c2w, want.camera.c2w)
+        assert (got.camera.fx, got.camera.fy, got.camera.cx, got.camera.cy, got.camera.width, got.camera.height) == \
+            (want.camera.fx, want.camera.fy, want.camera.cx, want.camera.cy, want.camera.width, want.camera.height)
+    assert load_checkpoint(save_checkpoint(tmp_path / "none.safetensors", model)).views == []
+    bad = tmp_path / "bad.safetensors"
+    save_checkpoint(bad, model, views=views)
+    data = bad.read_bytes().replace(b'\\"width\\": 64', b'\\"width\\": -1', 1)  # same length: a valid header
+    assert data != bad.read_bytes()
+    bad.write_bytes(data)
+    with pytest.raises(CheckpointError, match="malformed recorded cameras") as err:
+        load_checkpoint(bad)
+    assert "\n" not in str(err.value)
+
+
 def test_bytes_are_deterministic():
     m = random_model(10, "current")
     assert checkpoint_bytes(m) == checkpoint_bytes(m)

@@ -312,3 +312,20 @@ def test_app_selects_the_gaussians_in_a_rectangle_given_on_the_command_line(disp
     assert report["markers"] == len(want) and report["overlay_lines"] == 3 * len(want)
     bad = run_view(display, str(ckpt), "--select", "1,2,3", "--exit-after", "1")
     assert bad.returncode == 2 and "rectangle must be 4" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_app_snaps_to_the_cameras_a_checkpoint_records(tmp_path):
+    """A model trained by splat4d carries its training cameras: the app offers them (any layout, dataset gone);
+    without them it falls back on the recorded dataset folder, and on nothing when that is gone too."""
+    from splat4d.cameras import DatasetView
+    from splat4d.viewer.app import ViewerApp
+
+    model = synthetic_model(20, seed=0)
+    views = [DatasetView(f"v{i}", orbit(20, 90 * i, 3.0, fov_deg=40, width=64, height=48), 0.25 * i)
+             for i in range(3)]
+    save_checkpoint(tmp_path / "trained.safetensors", model, views=views,
+                    training={"dataset": str(tmp_path / "gone")})
+    got = ViewerApp._training_views(load_checkpoint(tmp_path / "trained.safetensors"))
+    assert [(v.name, v.time) for v in got] == [(v.name, v.time) for v in views]
+    save_checkpoint(tmp_path / "old.safetensors", model, training={"dataset": str(tmp_path / "gone")})
+    assert ViewerApp._training_views(load_checkpoint(tmp_path / "old.safetensors")) == []

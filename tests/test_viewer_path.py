@@ -121,6 +121,22 @@ def test_dataset_cameras_become_a_path(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(CameraError, match="transforms_train.json"):
         dataset_views(tmp_path / "empty", "train")
+    # a checkpoint recording these cameras (as `splat4d train` writes them) stands in for the dataset
+    from splat4d.checkpoint import save_checkpoint
+    from splat4d.viewer.synthetic import synthetic_model
+
+    model = synthetic_model(10, seed=0)
+    save_checkpoint(tmp_path / "trained.safetensors", model, views=views)
+    recorded = dataset_views(tmp_path / "trained.safetensors")
+    assert [(v.name, v.time) for v in recorded] == [(v.name, v.time) for v in views]
+    for got, want in zip(recorded, views):
+        np.testing.assert_allclose(got.camera.c2w, want.camera.c2w, atol=1e-12)
+        assert (got.camera.fx, got.camera.cy, got.camera.width) == (want.camera.fx, want.camera.cy, 64)
+    again = path_from_dataset(tmp_path / "trained.safetensors", seconds_per_key=2.0)
+    assert [k.scene_time for k in again.keys] == [k.scene_time for k in path.keys]
+    save_checkpoint(tmp_path / "imported.safetensors", model)
+    with pytest.raises(CameraError, match="records no training cameras"):
+        dataset_views(tmp_path / "imported.safetensors")
 
 
 def test_trajectories_and_time_modes():

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from splat4d.cameras import DatasetView
 from splat4d.checkpoint import load_checkpoint, save_checkpoint
 from splat4d.errors import CheckpointError, OutputExistsError, Splat4DError
 from splat4d.fileio import atomic_path
@@ -273,7 +274,8 @@ class Trainer:
         training = {**self.cfg.to_dict(), "iteration": self.step, "dataset": str(self.ds.root),
                     "layout": self.ds.layout}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
-                        provenance={"tool": "splat4d train", "preset": self.cfg.preset}, training=training)
+                        provenance={"tool": "splat4d train", "preset": self.cfg.preset}, training=training,
+                        views=[DatasetView(v.name, v.camera, v.time) for v in self.ds.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()}}
         with atomic_path(state_path(self.out), force=True) as tmp:

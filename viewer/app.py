@@ -580,7 +580,10 @@ class ViewerApp:
 
     @staticmethod
     def _training_views(ckpt) -> list:
-        """The cameras of the dataset a checkpoint was trained on, when that folder is still readable."""
+        """The cameras of the dataset a checkpoint was trained on: those it records, else those of its dataset
+        folder when that is still readable."""
+        if getattr(ckpt, "views", None):
+            return list(ckpt.views)
         root = (getattr(ckpt, "training", None) or {}).get("dataset")
         if not root or not Path(root).is_dir():
             return []

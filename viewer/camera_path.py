@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 from splat4d import quaternion
-from splat4d.cameras import Camera, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
+from splat4d.cameras import Camera, DatasetView, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
 from splat4d.errors import CameraError
 from splat4d.fileio import atomic_write_json
 
@@ -435,15 +435,6 @@ def nerfstudio_camera_path(cameras: Sequence[Camera], fps: float, times: Sequenc
 
 
 # --- training dataset cameras ----------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class DatasetView:
-    """One camera of a training dataset: its name (image path), the camera and the frame's scene time."""
-
-    name: str
-    camera: Camera
-    time: float
-
-
 def _transforms_files(path: Path, split: str | None) -> list[Path]:
     if path.is_file():
         return [path]
@@ -477,11 +468,15 @@ def _image_size(root: Path, frame: dict, meta: dict) -> tuple[int, int] | None:
 
 
 def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[DatasetView]:
-    """Cameras of a D-NeRF / Blender layout dataset (``transforms_<split>.json``; ``split=None``: all splits).
+    """Cameras of a D-NeRF / Blender layout dataset (``transforms_<split>.json``; ``split=None``: all splits), or
+    the training cameras a splat4d checkpoint (``.safetensors``) records (`recorded_views`; any layout it was
+    trained on, `split` aside).
 
     Poses are OpenGL camera-to-world ``transform_matrix``; intrinsics come from ``fl_x/fl_y/cx/cy`` or
     ``camera_angle_x``; the image size from ``w/h`` or the first image (800x800 if neither is found).
     """
+    if Path(path).suffix == ".safetensors":
+        return recorded_views(path)
     views: list[DatasetView] = []
     for f in _transforms_files(Path(path), split):
         try:
@@ -501,6 +496,22 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
             views.append(DatasetView(str(fr.get("file_path", f"{f.stem}/{i}")), cam, float(time)))
     if not views:
         raise CameraError(f"{path}: the dataset has no camera frames")
+    return views
+
+
+def recorded_views(path: str | os.PathLike) -> list[DatasetView]:
+    """The training cameras recorded in the splat4d checkpoint `path` (`splat4d.checkpoint`), read from its
+    metadata alone; CameraError (one line) when it records none."""
+    from splat4d.checkpoint import read_metadata, recorded_views as from_metadata
+    from splat4d.errors import CheckpointError
+
+    try:
+        views = from_metadata(read_metadata(path), path)
+    except CheckpointError as exc:
+        raise CameraError(str(exc)) from None
+    if not views:
+        raise CameraError(f"{path}: records no training cameras (written by an importer, or by splat4d train "
+                          "before it recorded them); give the dataset folder instead")
     return views
 
 

@@ -64,7 +64,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="camera motion (default orbit; path when --path or --cameras is given)")
     c.add_argument("--path", metavar="JSON", help="keyframed camera path file (README: Camera path files)")
     c.add_argument("--cameras", metavar="DATASET",
-                   help="use the cameras of a training dataset (D-NeRF layout folder or transforms json) as path")
+                   help="use the cameras of a training dataset as path: a D-NeRF layout folder or transforms json, "
+                        "or a checkpoint trained by splat4d (it records its training cameras, any layout)")
     c.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
     c.add_argument("--seconds-per-key", type=float, default=0.5,
                    help="seconds between dataset cameras for --cameras (default 0.5)")

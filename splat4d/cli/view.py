@@ -53,7 +53,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time", type=float, default=None, help="model time to start at (default: mid-range)")
     p.add_argument("--loop-seconds", type=float, default=2.0,
                    help="seconds per pass through the time range at speed 1 (default 2)")
-    p.add_argument("--cameras", metavar="DATASET", help="training dataset whose cameras can be snapped to")
+    p.add_argument("--cameras", metavar="DATASET",
+                   help="training dataset whose cameras can be snapped to: a D-NeRF layout folder or transforms "
+                        "json, or a splat4d checkpoint recording them (default: those the model's own checkpoint "
+                        "records, else its dataset folder)")
     p.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
     p.add_argument("--path", metavar="JSON", help="camera path to load (play it from the panel)")
     p.add_argument("--play-path", action="store_true", help="start playing the --path camera path at once")

@@ -166,6 +166,8 @@ def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path):
         assert (got.camera.fx, got.camera.fy, got.camera.cx, got.camera.cy, got.camera.width, got.camera.height) == \
             (want.camera.fx, want.camera.fy, want.camera.cx, want.camera.cy, want.camera.width, want.camera.height)
     assert load_checkpoint(save_checkpoint(tmp_path / "none.safetensors", model)).views == []
+    assert main(["convert", str(path), "--out", str(tmp_path / "converted.safetensors"), "--dtype", "float64"]) == 0
+    assert [v.name for v in load_checkpoint(tmp_path / "converted.safetensors").views] == [v.name for v in views]
     bad = tmp_path / "bad.safetensors"
     save_checkpoint(bad, model, views=views)
     data = bad.read_bytes().replace(b'\\"width\\": 64', b'\\"width\\": -1', 1)  # same length: a valid header

@@ -100,7 +100,10 @@ def app(tmp_path):
     from splat4d.viewer.app import AppOptions, ViewerApp
 
     model = synthetic_model(2000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
-    ckpt = save_checkpoint(tmp_path / "m.safetensors", model, background=(1.0, 1.0, 1.0))
+    from splat4d.cameras import DatasetView
+
+    ckpt = save_checkpoint(tmp_path / "m.safetensors", model, background=(1.0, 1.0, 1.0),
+                           views=[DatasetView("train/r_000", orbit(20, 30, 2.0, fov_deg=40, width=64, height=64), 0.5)])
     viewer = ViewerApp(ckpt, AppOptions(play=False))
     viewer.renderer = SplatRenderer(headless_context())
     viewer.load(str(ckpt))
@@ -141,6 +144,7 @@ def test_app_deletes_the_selection_shows_the_rest_and_saves_it(app, tmp_path):
     torch.testing.assert_close(saved.model.means, model.means[keep], rtol=0, atol=0)
     assert saved.provenance["deleted"] == {"count": int(k), "kept": n - int(k), "of": n}
     assert "crop" not in saved.provenance and saved.background == (1.0, 1.0, 1.0)
+    assert [v.name for v in saved.views] == ["train/r_000"]  # the training cameras stay with the model
 
     # with a crop box too: the file holds the box's Gaussians less the deleted ones; the provenance says both
     app._crop.enabled, app._crop.lo, app._crop.hi = True, [-0.4, -0.4, -0.4], [0.1, 0.4, 0.4]

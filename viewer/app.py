@@ -568,7 +568,7 @@ class ViewerApp:
         if deleted:
             provenance["deleted"] = {"count": deleted, "kept": len(model), "of": n}
         save_checkpoint(ed.file, model, background=ckpt.background, provenance=provenance,
-                        training=ckpt.training, force=ed.overwrite)
+                        training=ckpt.training, force=ed.overwrite, views=getattr(ckpt, "views", None))
         ed.unsaved = False
         self.status = f"saved {len(model):,} of {n:,} Gaussians to {ed.file}"
 

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         model = apply_crop(model, args.crop)
         provenance["crop"] = box.provenance(len(model), before)
     save_checkpoint(out, model, background=ckpt.background, provenance=provenance, training=ckpt.training,
-                    force=args.force)
+                    force=args.force, views=ckpt.views)  # a crop or a new dtype keeps the training cameras
     t0, t1 = model.time_range
     frames = f", {model.num_frames} keyframes" if model.kind == "keyframed" else ""
     print(f"wrote {out}: {model.kind}, {len(model):,} Gaussians, time {t0:g}..{t1:g}{frames}, "

@@ -4,9 +4,10 @@ The depth of Gaussian i at time t is the camera-space z of its conditional mean 
 point the vertex shader projects. A Gaussian is dropped from the order (not drawn at all) when it cannot cover a
 pixel at this (camera, t): its temporal marginal is <= TEMPORAL_CULL, its opacity times that marginal is below
 ALPHA_THRESHOLD, its mean is at or in front of the near plane (`Footprint.near_plane`, NEAR_PLANE by default), or a
-conservative bound of its footprint misses the image. Survivors are argsorted by decreasing depth. Each also gets its screen box (from its projected 2D covariance,
-computed as splat_preprocess.glsl and the trainer's rasterizer do, and its opacity at t), which the renderer uses to
-skip Gaussians hidden behind pixels that are already opaque and to choose between point and quad splats.
+conservative bound of its footprint misses the image. Survivors are argsorted by decreasing depth. Each also gets
+its screen box (from its projected 2D covariance, computed as splat_preprocess.glsl and the trainer's rasterizer do,
+its opacity at t and the `Footprint` caps), which the renderer uses to skip Gaussians hidden behind pixels that are
+already opaque and to choose between point and quad splats.
 
 `depth_order` is a fused numba key kernel plus a numba radix sort; both release the GIL, so the desktop app sorts
 in a worker thread with the serial kernel (not competing with the rasterizer threads of a software GL), while a

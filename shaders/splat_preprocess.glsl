@@ -36,7 +36,8 @@ uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
 uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|,
                             // 3 the visible time span (splat4d.covariance.visible_span), at most u_duration,
-                            // 4 the temporal marginal at t (the factor on the opacity, in (TEMPORAL_CULL, 1])
+                            // 4 the factor on the opacity at t (the temporal marginal, in (TEMPORAL_CULL, 1],
+                            // faded to 0 at the cull with the smooth temporal fade)
 
 out vec4 o_geom;   // centre x, y (pixels, y down), footprint radius in std-devs (0 = culled; capped), depth z
 out vec4 o_axes;   // 2D principal axes scaled by their std-devs (pixels): axis 1 xy, axis 2 xy
@@ -182,7 +183,7 @@ void main() {
     // Gaussian (or a keyframed slice) reads as "throughout" instead of flooding the pixel's average
     float span = a_motion.w > 0.0 ? min(2.0 * sqrt(-log(TEMPORAL_CULL) / a_motion.w), u_duration) : u_duration;
     vec3 rgb = u_value == 0 ? sh_color(mean - u_campos, -dt)
-                            : vec3(u_value == 1 ? p.z : u_value == 2 ? a_cov_b.w : u_value == 3 ? span : marginal);
+                            : vec3(u_value == 1 ? p.z : u_value == 2 ? a_cov_b.w : u_value == 3 ? span : factor);
     o_color = vec4(rgb, opacity);
     o_rect = vec4(floor(lo / float(TILE_SIZE)), ceil(hi / float(TILE_SIZE))) * float(TILE_SIZE);
 }

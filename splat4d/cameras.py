@@ -321,6 +321,11 @@ def views_from_json(obj: dict) -> list[DatasetView]:
     try:
         cameras = [Camera(np.asarray(c["c2w"], np.float64).reshape(3, 4), c["fx"], c["fy"], c["cx"], c["cy"],
                           int(c["width"]), int(c["height"])) for c in obj["cameras"]]
-        return [DatasetView(str(name), cameras[int(i)], float(t)) for i, t, name in obj["views"]]
-    except (KeyError, TypeError, ValueError, IndexError, CameraError) as exc:
+        views = []
+        for i, t, name in obj["views"]:
+            if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(cameras):
+                raise IndexError(f"camera index {i!r} of {len(cameras)} cameras")
+            views.append(DatasetView(str(name), cameras[i], float(t)))
+        return views
+    except (KeyError, TypeError, ValueError, IndexError, ArithmeticError, CameraError) as exc:
         raise CameraError(f"malformed recorded cameras ({type(exc).__name__}: {exc})") from None

@@ -167,7 +167,19 @@ def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu")
         raise CheckpointError(f"{path}: background must be 3 numbers, got {bg!r}")
     return Checkpoint(model=model, background=tuple(float(x) for x in bg), provenance=meta.get("provenance", {}),
                       training=meta.get("training", {}), format_version=version, path=path,
-                      views=recorded_views(meta, path))
+                      views=_views_or_warning(meta, path))
+
+
+def _views_or_warning(meta: dict, path: Path) -> list:
+    """The recorded training cameras, or none with a warning when the record is malformed: they are optional
+    extras (no checksum covers them), and must not make the model itself unreadable."""
+    try:
+        return recorded_views(meta, path)
+    except CheckpointError as exc:
+        import warnings
+
+        warnings.warn(f"{exc}; its training cameras are ignored", stacklevel=3)
+        return []
 
 
 def recorded_views(meta: dict, path: Path | str = "checkpoint") -> list:

@@ -145,13 +145,13 @@ def test_info_reports_the_model(tmp_path, capsys):
     assert "Gaussians with a std-dev over 10% of the bounds' diagonal" in capsys.readouterr().out
 
 
-def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path):
+def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path, capsys):
     """A multi-view video repeats each camera per frame: the checkpoint keeps each camera once and each view as
     (camera index, time, name); the views read back exactly; a checkpoint without them has none; a malformed
     record is a one-line error."""
     import numpy as np
 
-    from splat4d.cameras import DatasetView, orbit, views_to_json
+    from splat4d.cameras import DatasetView, orbit, views_from_json, views_to_json
 
     cams = [orbit(20, a, 3.0, fov_deg=40, width=64, height=48) for a in (0, 90)]
     views = [DatasetView(f"v{v}/f{f}", cams[v], f / 2) for f in range(3) for v in range(2)]
@@ -166,6 +166,9 @@ def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path):
         assert (got.camera.fx, got.camera.fy, got.camera.cx, got.camera.cy, got.camera.width, got.camera.height) == \
             (want.camera.fx, want.camera.fy, want.camera.cx, want.camera.cy, want.camera.width, want.camera.height)
     assert load_checkpoint(save_checkpoint(tmp_path / "none.safetensors", model)).views == []
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert (info["training_views"], info["training_cameras"]) == (6, 2)
     assert main(["convert", str(path), "--out", str(tmp_path / "converted.safetensors"), "--dtype", "float64"]) == 0
     assert [v.name for v in load_checkpoint(tmp_path / "converted.safetensors").views] == [v.name for v in views]
     bad = tmp_path / "bad.safetensors"
@@ -173,9 +176,22 @@ def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path):
     data = bad.read_bytes().replace(b'\\"width\\": 64', b'\\"width\\": -1', 1)  # same length: a valid header
     assert data != bad.read_bytes()
     bad.write_bytes(data)
-    with pytest.raises(CheckpointError, match="malformed recorded cameras") as err:
-        load_checkpoint(bad)
+    # the model still loads (the cameras are optional extras), with a warning; asking for them is a one-line error
+    with pytest.warns(UserWarning, match="malformed recorded cameras"):
+        assert load_checkpoint(bad).views == []
+    from splat4d.errors import CameraError
+    from splat4d.viewer.camera_path import dataset_views
+
+    with pytest.raises(CameraError, match="malformed recorded cameras") as err:
+        dataset_views(bad)
     assert "\n" not in str(err.value)
+    with pytest.raises(CameraError, match="not a 'test' split"):
+        dataset_views(path, "test")
+    for record in ({"cameras": record["cameras"], "views": [[-1, 0.0, "x"]]},
+                   {"cameras": record["cameras"], "views": [[1e999, 0.0, "x"]]},
+                   {"cameras": [], "views": [[True, 0.0, "x"]]}):
+        with pytest.raises(CameraError, match="malformed recorded cameras"):
+            views_from_json(record)
 
 
 def test_bytes_are_deterministic():

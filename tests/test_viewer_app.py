@@ -143,14 +143,16 @@ def test_app_draws_with_the_footprint_caps_like_headless(display, tmp_path):
     model = load_checkpoint(trained_checkpoint("spinner")).model
     shot, report_path = tmp_path / "capped.png", tmp_path / "report.json"
     proc = run_view(display, "--size", "120x90", "--exit-after", "3", "--paused", "--time", "0.25",
-                    "--max-std-dev", "1.5", "--max-screen-radius", "0.04", "--screenshot", str(shot),
+                    "--max-std-dev", "1.5", "--max-screen-radius", "0.04", "--temporal-fade", "smooth",
+                    "--screenshot", str(shot),
                     "--report", str(report_path))
     assert proc.returncode == 0, proc.stderr
     report = json.loads(report_path.read_text())
     assert (report["screenshot"]["max_std_dev"], report["screenshot"]["max_screen_radius"]) == (1.5, 0.04)
+    assert report["screenshot"]["temporal_fade"] == "smooth"
     img = read_shot(shot)
     same = psnr(img, headless_of(report, model))
-    uncapped = dict(report["screenshot"], max_std_dev=None, max_screen_radius=None)
+    uncapped = dict(report["screenshot"], max_std_dev=None, max_screen_radius=None, temporal_fade="cut")
     assert same >= 40.0 and psnr(img, headless_of({"screenshot": uncapped}, model)) < 38.0  # below "the same image"
 
 
@@ -323,9 +325,19 @@ def test_the_app_snaps_to_the_cameras_a_checkpoint_records(tmp_path):
     model = synthetic_model(20, seed=0)
     views = [DatasetView(f"v{i}", orbit(20, 90 * i, 3.0, fov_deg=40, width=64, height=48), 0.25 * i)
              for i in range(3)]
-    save_checkpoint(tmp_path / "trained.safetensors", model, views=views,
-                    training={"dataset": str(tmp_path / "gone")})
-    got = ViewerApp._training_views(load_checkpoint(tmp_path / "trained.safetensors"))
-    assert [(v.name, v.time) for v in got] == [(v.name, v.time) for v in views]
-    save_checkpoint(tmp_path / "old.safetensors", model, training={"dataset": str(tmp_path / "gone")})
-    assert ViewerApp._training_views(load_checkpoint(tmp_path / "old.safetensors")) == []
+    from splat4d.viewer.app import AppOptions
+    from splat4d.viewer.renderer import SplatRenderer, headless_context
+
+    trained = save_checkpoint(tmp_path / "trained.safetensors", model, views=views,
+                              training={"dataset": str(tmp_path / "gone")})
+    app = ViewerApp(trained, AppOptions(play=False))
+    app.renderer = SplatRenderer(headless_context())
+    app.load(str(trained))  # as the window does: the recorded cameras become the dataset cameras
+    assert [(v.name, v.time) for v in app._views] == [(v.name, v.time) for v in views]
+    np.testing.assert_array_equal(app._views[1].camera.c2w, views[1].camera.c2w)
+    assert app.playback.frame_times == (0.0, 0.25, 0.5)  # and frame steps visit their times
+    old = save_checkpoint(tmp_path / "old.safetensors", model, training={"dataset": str(tmp_path / "gone")})
+    assert ViewerApp._training_views(load_checkpoint(old)) == []
+    app.load(str(old))
+    assert app._views == [] and app.playback.frame_times == ()
+    app.renderer.release()

@@ -483,7 +483,7 @@ def test_an_order_of_another_footprint_or_screen_capped_at_another_size_is_sorte
     r.release()
 
 
-def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest():
+def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest(tmp_path):
     """One Gaussian with a short time window (var_t 0.01: marginal exp(-t^2 / 0.02)), seen head-on at several
     times: with the smooth fade its alpha is the cut one's times smoothstep(0.05, 0.1, marginal)
     (`covariance.temporal_factor`), the same from a marginal of 0.1 up, and 0 from the cull on, like the cut."""
@@ -516,6 +516,15 @@ def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest():
         assert (cut > 0) == bool(m > 0.05) and (smooth == cut) == bool(m >= 0.1 or m <= 0.05)
     # the cut drops a Gaussian from 0.05 of its peak alpha to nothing; the smooth fade is nearly 0 there already
     assert centre_alpha(0.2445, "cut") > 0.02 and centre_alpha(0.2445, "smooth") < 1e-3
+    # the command line draws the same: `render --temporal-fade` at one of those times, from the same camera
+    ckpt = save_checkpoint(tmp_path / "fading.safetensors", model)
+    for fade in TEMPORAL_FADES:
+        out = tmp_path / f"{fade}.exr"
+        assert main(["render", str(ckpt), "--out", str(out), "--size", "33x33", "--elevation", "0", "--azimuth", "0",
+                     "--distance", "3", "--target", "0,0,0", "--fov", "30", "--time", "0.232", "--background",
+                     "transparent", "--temporal-fade", fade, "--quiet"]) == 0
+        got = float(oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[16, 16, 3])
+        assert got == pytest.approx(centre_alpha(0.232, fade), rel=2e-3), fade  # (EXR holds half floats)
     r.release()
     assert TEMPORAL_FADES == ("cut", "smooth")
     with pytest.raises(Exception, match="unknown temporal fade"):

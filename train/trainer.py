@@ -275,7 +275,8 @@ class Trainer:
                     "layout": self.ds.layout}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
                         provenance={"tool": "splat4d train", "preset": self.cfg.preset}, training=training,
-                        views=[DatasetView(v.name, v.camera, v.time) for v in self.ds.train])
+                        views=[DatasetView(_relative_name(v.name, self.ds.root), v.camera, v.time)
+                               for v in self.ds.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()}}
         with atomic_path(state_path(self.out), force=True) as tmp:
@@ -314,3 +315,10 @@ class Trainer:
             return None
         return evaluate(self.model().detach(), self.ds.test, self.ds.background, self.device,
                         progress=self.progress)
+
+
+def _relative_name(name: str, root) -> str:
+    """A view's name (its image path, maybe with a frame or view suffix) relative to the dataset folder, as the
+    checkpoint records it: shorter, and no user's absolute paths in a file that may be shared."""
+    root_text = str(root).rstrip("/") + "/"
+    return name[len(root_text):] if name.startswith(root_text) else name

@@ -541,9 +541,9 @@ class ViewerApp:
         hit = ins.hit
         if hit is None:
             return None
-        key = (hit.index, t, self.settings.splat_scale)
+        key = (hit.index, t, self.settings.splat_scale, self.settings.temporal_fade)
         if ins.cache is None or ins.cache[0] != key:
-            rows, g = inspect_gaussian(self.renderer.model, hit.index, t)
+            rows, g = inspect_gaussian(self.renderer.model, hit.index, t, self.settings.temporal_fade)
             cov = g.covariances[0].double().numpy() * self.settings.splat_scale ** 2
             ins.cache = (key, rows, ellipsoid_segments(g.means[0].double().numpy(), cov))
         return ins.cache[1], ins.cache[2]

@@ -476,6 +476,8 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
     ``camera_angle_x``; the image size from ``w/h`` or the first image (800x800 if neither is found).
     """
     if Path(path).suffix == ".safetensors":
+        if split not in ("train", None):
+            raise CameraError(f"{path}: a checkpoint records its training cameras only, not a {split!r} split")
         return recorded_views(path)
     views: list[DatasetView] = []
     for f in _transforms_files(Path(path), split):

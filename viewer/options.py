@@ -106,12 +106,13 @@ def add_footprint_args(parser: argparse.ArgumentParser) -> None:
     """Which splats reach the screen and how far (`splat4d.viewer.sorting.Footprint`): the near plane and the
     performance guards, the trainer's by default (other values change the image)."""
     from splat4d.constants import NEAR_PLANE
+    from splat4d.covariance import TEMPORAL_FADES
 
     parser.add_argument("--near-plane", type=argtype(parse_positive), default=NEAR_PLANE, metavar="D",
                         help=f"Gaussians closer to the camera than this depth are not drawn (default {NEAR_PLANE:g}, "
                              "as the trainer); lower it to fly close to or into a model, best with "
                              "--max-screen-radius")
-    parser.add_argument("--temporal-fade", choices=("cut", "smooth"), default="cut",
+    parser.add_argument("--temporal-fade", choices=TEMPORAL_FADES, default="cut",
                         help="how a Gaussian leaves the scene at the end of its time window: cut (default, the "
                              "trainer's: dropped once its temporal opacity falls to 0.05 of its peak, a small "
                              "pop) or smooth (faded to 0 over its last doubling, no pop)")

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from splat4d.constants import MAX_ALPHA, TRANSMITTANCE_THRESHOLD
-from splat4d.covariance import condition_on_time, visible_span
+from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
+from splat4d.covariance import condition_on_time, temporal_factor, temporal_marginal, visible_span
 from splat4d.model import Gaussians3D, Gaussians4D
 
 
@@ -115,26 +115,33 @@ def composite_pixel(records: np.ndarray, indices: np.ndarray, pixel: tuple[int, 
     return PixelStack((x, y), tuple(hits), 1.0 - T, tuple(float(v) for v in rgb))
 
 
-def describe(model, index: int, t: float) -> list[tuple[str, str]]:
+def describe(model, index: int, t: float, fade: str = "cut") -> list[tuple[str, str]]:
     """(label, value) rows describing Gaussian `index` of `model` at time `t`, for the app's Inspect panel: where
-    it is, how it moves and fades, its size and opacity. Computed from the model's own `slice`."""
-    return inspect_gaussian(model, index, t)[0]
+    it is, how it moves and fades, its size and opacity (with the temporal `fade` drawn). Computed from the model's
+    own `slice`."""
+    return inspect_gaussian(model, index, t, fade)[0]
 
 
-def inspect_gaussian(model, index: int, t: float) -> tuple[list[tuple[str, str]], Gaussians3D]:
+def inspect_gaussian(model, index: int, t: float, fade: str = "cut") -> tuple[list[tuple[str, str]], Gaussians3D]:
     """(`describe`'s rows, the one-Gaussian slice they were read from) of Gaussian `index` at time `t`: the slice
-    also gives the app the ellipsoid to draw."""
+    also gives the app the ellipsoid to draw. The opacity at t is the one drawn with the temporal `fade`
+    (`splat4d.covariance.temporal_factor`)."""
     one = model.select(torch.tensor([int(index)]))
     with torch.no_grad():
         g = one.slice(float(t))
+        opacity = float(g.opacities[0])
+        if isinstance(one, Gaussians4D):
+            _, _, var_t = condition_on_time(one.covariance_4d())
+            marginal = temporal_marginal(float(t), one.t_means, var_t)
+            opacity = float(one.opacities[0] * temporal_factor(marginal, fade)[0])
+        drawn = bool(g.visible[0]) and opacity >= ALPHA_THRESHOLD
         rows = [("index", f"{int(index):,} of {len(model):,}"),
                 ("position", vector_text(g.means[0])),
                 ("velocity", vector_text(g.velocities[0])),
                 ("speed", f"{float(g.velocities[0].norm()):.4g}"),
                 ("std-devs", vector_text(torch.linalg.eigvalsh(g.covariances[0].double()).clamp_min(0).sqrt().flip(0))),
-                ("opacity at t", f"{float(g.opacities[0]):.3f}" + ("" if bool(g.visible[0]) else "  (not drawn)"))]
+                ("opacity at t", f"{opacity:.3f}" + ("" if drawn else "  (not drawn)"))]
         if isinstance(one, Gaussians4D):
-            _, _, var_t = condition_on_time(one.covariance_4d())
             sd_t = math.sqrt(float(var_t[0]))
             rows += [("peak opacity", f"{float(one.opacities[0]):.3f} at t = {float(one.t_means[0]):.4g}"),
                      ("time std-dev", f"{sd_t:.4g}"),

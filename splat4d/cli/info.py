@@ -45,6 +45,9 @@ def summarize(path, **options) -> dict:
     }
     if model.kind == "keyframed":
         out["num_frames"] = model.num_frames
+    views = getattr(ckpt, "views", None) or []
+    out["training_views"] = len(views)
+    out["training_cameras"] = len({id(v.camera) for v in views})  # views_from_json shares one Camera per camera
     out.update(shape_stats(model, float(np.linalg.norm(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))))
     return out
 
@@ -106,6 +109,9 @@ def run(args: argparse.Namespace) -> int:
     if info["large"]:
         rows.append(("large", f"{info['large']:,} Gaussians with a std-dev over {LARGE_SHARE:.0%} of the bounds' "
                               "diagonal (they fill the screen up close: view/render --max-screen-radius)"))
+    if info["training_views"]:
+        rows.append(("training views", f"{info['training_views']:,} from {info['training_cameras']:,} camera(s) "
+                                        "(view/render --cameras this file)"))
     if info["rotation_convention"]:
         rows.append(("4D rotation", info["rotation_convention"]))
     if "num_frames" in info:

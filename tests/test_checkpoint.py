@@ -179,6 +179,10 @@ def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path, c
     # the model still loads (the cameras are optional extras), with a warning; asking for them is a one-line error
     with pytest.warns(UserWarning, match="malformed recorded cameras"):
         assert load_checkpoint(bad).views == []
+    proc = subprocess.run([sys.executable, "-m", "splat4d", "info", str(bad)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and "gaussians" in proc.stdout
+    assert proc.stderr.startswith("splat4d info: warning:") and proc.stderr.count("\n") == 1  # one line
     from splat4d.errors import CameraError
     from splat4d.viewer.camera_path import dataset_views
 

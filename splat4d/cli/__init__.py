@@ -44,8 +44,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    import warnings
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    # a warning is one line that names the command, like an error, not a source location and a code line
+    previous = warnings.formatwarning
+    warnings.formatwarning = lambda message, *_, **__: f"splat4d {args.command}: warning: {message}\n"
     try:
         return int(args._run(args) or 0)
     except Splat4DError as exc:
@@ -57,6 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
         print(f"splat4d {args.command}: error: {exc.strerror or exc}: {exc.filename}", file=sys.stderr)
         return 1
+    finally:
+        warnings.formatwarning = previous
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -174,7 +174,7 @@ def _views_or_warning(meta: dict, path: Path) -> list:
     """The recorded training cameras, or none with a warning when the record is malformed: they are optional
     extras (no checksum covers them), and must not make the model itself unreadable."""
     try:
-        return recorded_views(meta, path)
+        return views_in_metadata(meta, path)
     except CheckpointError as exc:
         import warnings
 
@@ -182,7 +182,7 @@ def _views_or_warning(meta: dict, path: Path) -> list:
         return []
 
 
-def recorded_views(meta: dict, path: Path | str = "checkpoint") -> list:
+def views_in_metadata(meta: dict, path: Path | str = "checkpoint") -> list:
     """The training cameras a checkpoint's metadata records (`splat4d.cameras.DatasetView`s; [] when none)."""
     if "cameras" not in meta:
         return []

@@ -160,13 +160,18 @@ def temporal_marginal(t: float | Tensor, t_means: Tensor, var_t: Tensor) -> Tens
 TEMPORAL_FADES: tuple[str, ...] = ("cut", "smooth")
 
 
+def check_fade(fade: str) -> None:
+    """ValueError unless `fade` is one of TEMPORAL_FADES."""
+    if fade not in TEMPORAL_FADES:
+        raise ValueError(f"unknown temporal fade {fade!r}; expected one of {', '.join(TEMPORAL_FADES)}")
+
+
 def temporal_factor(marginal: Tensor, fade: str = "cut") -> Tensor:
     """What multiplies a Gaussian's opacity at a time where its `temporal_marginal` is `marginal`: the marginal
     (fade "cut", the reference) or, with "smooth", marginal * smoothstep(TEMPORAL_CULL, 2 TEMPORAL_CULL, marginal),
     which is 0 at the cull and the marginal itself from twice the cull up (splat_preprocess.glsl mirrors it).
     Either way it is 0 where the marginal is <= TEMPORAL_CULL."""
-    if fade not in TEMPORAL_FADES:
-        raise ValueError(f"unknown temporal fade {fade!r}; expected one of {', '.join(TEMPORAL_FADES)}")
+    check_fade(fade)
     m = torch.as_tensor(marginal)
     factor = m * (m > TEMPORAL_CULL)
     if fade == "smooth":
@@ -175,12 +180,11 @@ def temporal_factor(marginal: Tensor, fade: str = "cut") -> Tensor:
     return factor
 
 
-def visible_span(var_t: Tensor, cull: float | None = None) -> Tensor:
+def visible_span(var_t: Tensor) -> Tensor:
     """``[N]`` how long each Gaussian is drawn: the width of the time window where its `temporal_marginal` exceeds
-    `cull` (default TEMPORAL_CULL, where slices stop drawing it), 2 sqrt(2 ln(1 / cull) var_t), in model time
-    units. What the viewer's lifespan mode shows."""
-    c = TEMPORAL_CULL if cull is None else cull
-    return 2.0 * torch.sqrt(2.0 * math.log(1.0 / c) * var_t)
+    TEMPORAL_CULL (where slices stop drawing it), 2 sqrt(2 ln(1 / TEMPORAL_CULL) var_t), in model time units. What
+    the viewer's lifespan mode shows."""
+    return 2.0 * torch.sqrt(2.0 * math.log(1.0 / TEMPORAL_CULL) * var_t)
 
 
 def covariance_4d_from_motion(cov3: Tensor, velocity: Tensor, var_t: Tensor) -> Tensor:

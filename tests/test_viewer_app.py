@@ -341,3 +341,16 @@ def test_the_app_snaps_to_the_cameras_a_checkpoint_records(tmp_path):
     app.load(str(old))
     assert app._views == [] and app.playback.frame_times == ()
     app.renderer.release()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--select", "500,500,600,600"], "lies outside the 160x120 window"),
+    (["--no-adaptive-resolution", "--sharp-playback"], "--no-adaptive-resolution turns off"),
+    (["--no-adaptive-resolution", "--frame-budget", "20"], "--no-adaptive-resolution turns off"),
+])
+def test_view_options_that_cannot_apply_are_one_line_errors_before_any_window(capsys, extra, message):
+    from splat4d.cli import main
+
+    assert main(["view", "--size", "160x120", *extra]) == 1
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err

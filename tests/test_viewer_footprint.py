@@ -16,12 +16,9 @@ from splat4d.cameras import look_at
 from splat4d.checkpoint import save_checkpoint
 from splat4d.cli import main
 from splat4d.constants import EPS2D
-from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4d
-from splat4d.model import Gaussians4D
-from splat4d.sh import rgb_to_sh
 from splat4d.viewer.renderer import GLError, RenderSettings, SplatRenderer, headless_context
 from splat4d.viewer.sorting import Footprint
-from test_viewer_sort import RED, swapping_pair
+from test_viewer_sort import RED, gaussians_from_motion, swapping_pair
 
 SIZE = 64
 SIGMA = 0.15  # swapping_pair's isotropic std-dev (world units)
@@ -80,14 +77,8 @@ def test_a_capped_splat_is_the_splat_inside_the_cap_and_nothing_outside(renderer
 
 def elongated_gaussian():
     """One static Gaussian at the origin, 9x longer along world y than across (std-devs 0.05, 0.45, 0.05)."""
-    cov3 = torch.diag(torch.tensor([0.05, 0.45, 0.05], dtype=torch.float64) ** 2)[None]
-    scales, scale_t, q_l, q_r = decompose_covariance_4d(
-        covariance_4d_from_motion(cov3, torch.zeros(1, 3, dtype=torch.float64), torch.full((1,), 100.0)))
-    return Gaussians4D(means=torch.zeros(1, 3, dtype=torch.float64), t_means=torch.zeros(1, dtype=torch.float64),
-                       log_scales=scales.log(), log_t_scales=scale_t.log(), quats_l=q_l, quats_r=q_r,
-                       opacity_logits=torch.full((1,), 3.0, dtype=torch.float64),
-                       sh_dc=rgb_to_sh(torch.ones(1, 3, dtype=torch.float64))[:, None],
-                       sh_rest=torch.zeros(1, 0, 3, dtype=torch.float64))
+    return gaussians_from_motion([[0.0, 0.0, 0.0]], torch.diag(torch.tensor([0.05, 0.45, 0.05]) ** 2), [0.0] * 3,
+                                 100.0, 3.0, [1.0, 1.0, 1.0])
 
 
 @pytest.mark.parametrize("caps", [{"max_screen_radius": 0.3}, {"max_std_dev": 1.7}])

@@ -118,7 +118,16 @@ def test_render_writes_panoramas_and_their_cameras_as_an_equirectangular_path(tm
     assert img.shape == (128, 256, 3) and img.std() > 5
     data = json.loads(cams.read_text())
     assert data["camera_type"] == "equirectangular" and (data["render_width"], data["render_height"]) == (256, 128)
-    assert CameraPath.load(cams).projection == "equirect"
+    path = CameraPath.load(cams)
+    assert path.projection == "equirect"
+    # the image is the panorama from the first camera's position (and not its flat view)
+    key = path.keys[0]
+    camera = path.camera(key.time, 256, 128)
+    want = next(render_frames(model, [camera], [key.scene_time], RenderSettings(), equirect=Equirect(256, 128)))
+    got = img[..., ::-1].astype(np.float64) / 255
+    assert np.abs(got - np.clip(want[..., :3], 0, 1)).max() <= 1.5 / 255
+    flat = next(render_frames(model, [camera], [key.scene_time], RenderSettings()))
+    assert np.abs(got - np.clip(flat[..., :3], 0, 1)).mean() > 0.02
     again = tmp_path / "again.png"
     proc = render("--out", str(again), "--path", str(cams))  # size and projection from the file
     assert proc.returncode == 0, proc.stderr

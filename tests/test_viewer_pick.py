@@ -188,6 +188,11 @@ def test_app_measures_the_distance_between_two_surfaces(tmp_path):
     assert np.linalg.norm(second - ends[1]) < pixel
     true = float(np.linalg.norm(ends[1] - ends[0]))
     assert abs(app._measure.distance - true) < 2 * pixel
+    # exactly: each end is the pick's surface depth unprojected through its pixel's centre
+    for (x, y), point in zip(uv.astype(int), (first, second)):
+        depth = app.renderer.pick(cam, 0.5, int(x), int(y), app.settings).surface_depth
+        np.testing.assert_allclose(point, cam.unproject([[x + 0.5, y + 0.5]], [depth])[0], atol=1e-9)
+    assert app._measure.distance == pytest.approx(float(np.linalg.norm(second - first)), abs=1e-12)
     assert app.report["measured"]["distance"] == app._measure.distance
     assert app._measure_lines(cam).shape == (3 * 2 + 1, 2, 3)  # two crosses and the tape
     app.measure(cam, 0.5, int(uv[0, 0]), int(uv[0, 1]))

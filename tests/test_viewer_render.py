@@ -201,6 +201,8 @@ def test_transparent_videos_keep_alpha(model, ckpt, tmp_path, suffix, colour_err
     (["--path", "missing.json", "--out", "a.mp4"], "no such camera path"),
     (["--background", "purple", "--out", "a.png"], "background must be"),
     (["--mode", "depth", "--map-range", "2,1", "--out", "a.png"], "--map-range needs LO < HI"),
+    (["--crf", "20", "--out", "a.png"], "--crf sets the quality of .mp4 and .webm videos"),
+    (["--out", "c.png", "--save-cameras", "c.png"], "is the --out file"),
 ])
 def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -487,20 +489,13 @@ def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest(tmp_
     """One Gaussian with a short time window (var_t 0.01: marginal exp(-t^2 / 0.02)), seen head-on at several
     times: with the smooth fade its alpha is the cut one's times smoothstep(0.05, 0.1, marginal)
     (`covariance.temporal_factor`), the same from a marginal of 0.1 up, and 0 from the cull on, like the cut."""
-    from splat4d.covariance import (TEMPORAL_FADES, covariance_4d_from_motion, decompose_covariance_4d,
-                                    temporal_factor, temporal_marginal)
-    from splat4d.model import Gaussians4D
-    from splat4d.sh import rgb_to_sh
+    from splat4d.covariance import TEMPORAL_FADES, temporal_factor, temporal_marginal
 
-    cov3 = torch.eye(3, dtype=torch.float64)[None] * 0.1 ** 2
+    from test_viewer_sort import gaussians_from_motion
+
     var_t = torch.full((1,), 0.01, dtype=torch.float64)
-    scales, scale_t, q_l, q_r = decompose_covariance_4d(
-        covariance_4d_from_motion(cov3, torch.zeros(1, 3, dtype=torch.float64), var_t))
-    model = Gaussians4D(means=torch.zeros(1, 3, dtype=torch.float64), t_means=torch.zeros(1, dtype=torch.float64),
-                        log_scales=scales.log(), log_t_scales=scale_t.log(), quats_l=q_l, quats_r=q_r,
-                        opacity_logits=torch.zeros(1, dtype=torch.float64),  # opacity 0.5
-                        sh_dc=rgb_to_sh(torch.ones(1, 3, dtype=torch.float64))[:, None],
-                        sh_rest=torch.zeros(1, 0, 3, dtype=torch.float64), time_range=(-1.0, 1.0))
+    model = gaussians_from_motion([[0.0, 0.0, 0.0]], torch.eye(3) * 0.1 ** 2, [0.0] * 3, var_t,
+                                  0.0, [1.0, 1.0, 1.0], time_range=(-1.0, 1.0))  # opacity 0.5
     cam = orbit(0, 0, 3.0, fov_deg=30, width=33, height=33)  # the Gaussian on the centre pixel's centre
     r = SplatRenderer(headless_context(), model)
 

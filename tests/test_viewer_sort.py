@@ -19,22 +19,31 @@ from splat4d.viewer.synthetic import synthetic_model
 RED, BLUE = 0, 1
 
 
+def gaussians_from_motion(means, cov3, velocity, var_t, opacity_logits, rgb, **model_fields) -> Gaussians4D:
+    """Native 4D Gaussians (temporal mean t = 0, SH degree 0) with these 3D covariances ``[N, 3, 3]``, velocities of
+    the mean and temporal variances (`covariance_4d_from_motion`); `model_fields` e.g. ``time_range``."""
+    f64 = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+    means, cov3, var_t = f64(means), f64(cov3), f64(var_t)
+    n = means.shape[0]
+    scales, scale_t, q_l, q_r = decompose_covariance_4d(
+        covariance_4d_from_motion(cov3.expand(n, 3, 3), f64(velocity).expand(n, 3), var_t.expand(n)))
+    return Gaussians4D(means=means, t_means=torch.zeros(n, dtype=torch.float64), log_scales=scales.log(),
+                       log_t_scales=scale_t.log(), quats_l=q_l, quats_r=q_r,
+                       opacity_logits=f64(opacity_logits).expand(n).clone(),
+                       sh_dc=rgb_to_sh(f64(rgb).expand(n, 3))[:, None],
+                       sh_rest=torch.zeros(n, 0, 3, dtype=torch.float64), **model_fields)
+
+
 def swapping_pair() -> Gaussians4D:
     """Gaussian 0 (red) moves from x=-1 to x=+1 over t in [0, 1], Gaussian 1 (blue) from +1 to -1.
 
     Both are stored with their temporal mean at t = 0, so their *stored* means are -1 and +1 whatever t is:
     a viewer sorting static positions gets the order wrong at t = 1.
     """
-    cov3 = torch.eye(3, dtype=torch.float64).expand(2, 3, 3) * 0.15 ** 2
-    velocity = torch.tensor([[2.0, 0.0, 0.0], [-2.0, 0.0, 0.0]], dtype=torch.float64)
-    var_t = torch.full((2,), 100.0, dtype=torch.float64)  # sigma_t = 10: no fading over [0, 1]
-    scales, scale_t, q_l, q_r = decompose_covariance_4d(covariance_4d_from_motion(cov3, velocity, var_t))
-    rgb = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
-    return Gaussians4D(
-        means=torch.tensor([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64),
-        t_means=torch.zeros(2, dtype=torch.float64), log_scales=scales.log(), log_t_scales=scale_t.log(),
-        quats_l=q_l, quats_r=q_r, opacity_logits=torch.full((2,), 5.0, dtype=torch.float64),
-        sh_dc=rgb_to_sh(rgb)[:, None], sh_rest=torch.zeros(2, 0, 3, dtype=torch.float64))
+    return gaussians_from_motion(
+        [[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], torch.eye(3) * 0.15 ** 2, [[2.0, 0.0, 0.0], [-2.0, 0.0, 0.0]],
+        100.0,  # sigma_t = 10: no fading over [0, 1]
+        5.0, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
 def test_sort_at_time_t_swaps_two_crossing_gaussians():

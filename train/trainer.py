@@ -320,5 +320,7 @@ class Trainer:
 def _relative_name(name: str, root) -> str:
     """A view's name (its image path, maybe with a frame or view suffix) relative to the dataset folder, as the
     checkpoint records it: shorter, and no user's absolute paths in a file that may be shared."""
-    root_text = str(root).rstrip("/") + "/"
-    return name[len(root_text):] if name.startswith(root_text) else name
+    try:
+        return str(Path(name).relative_to(root))
+    except ValueError:  # not under the dataset folder
+        return name

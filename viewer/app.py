@@ -54,6 +54,7 @@ from .pick import PixelHit, PixelStack, inspect_gaussian, peak_time, vector_text
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings, SplatRenderer
 from .selection import Edits, centres_at, in_rect, marker_segments, normalise_rect
 from .sorting import AsyncSorter, SortKey, SortResult, view_key
+from .splats import needs_per_frame_upload, to_arrays
 from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudio
 
 
@@ -169,11 +170,12 @@ class _Editor:
     #: unselects (Shift+Alt)
     drag: list | None = None
     drag_removes: bool = False
-    #: (shown set, `Edits.revision`, time) -> centres of the selected Gaussians shown: remade when one changes
+    #: ((shown set, `Edits.revision`), the selected Gaussians shown (indices into it), (time, their centres then)):
+    #: the indices are remade when the selection or the shown set changes, the centres when the time does too
     markers: tuple | None = None
+    #: where Save edited writes: `edited_name` of the model's file unless the user typed another (kept for the next
+    #: model)
     file: str = "edited.safetensors"
-    #: what `file` was set to when the model was opened (a file the user typed instead is kept for the next model)
-    default_file: str = "edited.safetensors"
     overwrite: bool = False
     #: deletions made since the model was opened or last saved ...
     unsaved: bool = False
@@ -333,11 +335,11 @@ class ViewerApp:
         name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
         old = self._editor
         # Save edited writes <name>_edited.safetensors unless the user typed a file; overwriting is asked anew
-        file = old.file if old.file != old.default_file else edited_name(name)
+        file = old.file if old.file != edited_name(getattr(self, "source_name", "")) else edited_name(name)
         state = ("_crop", "_editor", "_measure", "model", "checkpoint", "_extent", "source_name")
         before = {k: getattr(self, k, None) for k in state}
         self._crop = self._initial_crop(extent, self.options.crop if first_load else None)
-        self._editor = _Editor(edits=Edits.of(len(model)), file=file, default_file=edited_name(name))
+        self._editor = _Editor(edits=Edits.of(len(model)), file=file)
         self.model, self.checkpoint, self._extent, self.source_name = model, ckpt, extent, name
         self._measure = _Measure()  # points on the previous model
         try:
@@ -398,6 +400,8 @@ class ViewerApp:
         shown = self.model if whole else self.model.select(torch.from_numpy(keep))
         ed.shown_index = np.flatnonzero(keep)
         full = ed.full_arrays  # the whole model's arrays: a subset of them is a gather, not a new conversion
+        if full is None and not whole and not needs_per_frame_upload(self.model):  # e.g. opened with --crop
+            full = ed.full_arrays = to_arrays(self.model)
         usable = full is not None and (full.time is None or full.time == float(t))  # a keyframed slice: at t only
         self.renderer.set_model(shown, t, arrays=(full if whole else full.select(keep)) if usable else None)
         if whole:
@@ -419,23 +423,24 @@ class ViewerApp:
         if order is None or order.key != SortKey.of(camera, t, footprint):
             order = self.renderer.sort(camera, t, footprint)
         caught = ed.shown_index[in_rect(order, rect)]
-        ed.edits.select(caught, mode)
-        self.report["selected"] = ed.edits.num_selected
+        selected = self.report["selected"] = ed.edits.select(caught, mode)
         self.report["selection"] = {"rect": [float(x) for x in rect], "time": t, "mode": mode,
                                     "camera": camera_to_json(camera), "caught": len(caught)}
         verb = "unselected" if mode == "remove" else "selected"
-        self.status = f"{verb} {len(caught):,} Gaussian(s); {ed.edits.num_selected:,} selected"
+        self.status = f"{verb} {len(caught):,} Gaussian(s); {selected:,} selected"
         return len(caught)
 
-    def select_inspected(self) -> None:
-        """Add the Gaussian shown in the Inspect tab to the selection."""
+    def _inspected_gaussian(self) -> int:
+        """The loaded model's index of the Gaussian shown in the Inspect tab."""
         hit = self._inspect.hit
         if hit is None:
             raise Splat4DError("Ctrl+click the model first: nothing is inspected")
-        ed = self._editor
-        ed.edits.select([ed.shown_index[hit.index]], "add")
-        self.report["selected"] = ed.edits.num_selected
-        self.status = f"{ed.edits.num_selected:,} selected"
+        return int(self._editor.shown_index[hit.index])
+
+    def select_inspected(self) -> None:
+        """Add the Gaussian shown in the Inspect tab to the selection."""
+        selected = self.report["selected"] = self._editor.edits.select([self._inspected_gaussian()], "add")
+        self.status = f"{selected:,} selected"
 
     def delete_selected(self) -> int:
         """Delete the selected Gaussians (Undo brings them back); returns how many."""
@@ -468,12 +473,9 @@ class ViewerApp:
     def _delete_inspected(self) -> None:
         """Delete the Gaussian shown in the Inspect tab, then inspect the same pixel again: the next Gaussian there
         comes up, so a floater made of several can be removed click by click."""
-        hit = self._inspect.hit
-        if hit is None:
-            raise Splat4DError("Ctrl+click the model first: nothing is inspected")
-        ed = self._editor
+        index = self._inspected_gaussian()
         pixel, camera = self._inspect.stack.pixel, self._inspect.camera
-        ed.edits.delete([ed.shown_index[hit.index]])  # the rest of the selection stays
+        self._editor.edits.delete([index])  # the rest of the selection stays
         self._edited("deleted 1 Gaussian")
         if camera is not None:
             status = self.status
@@ -723,13 +725,16 @@ class ViewerApp:
         if scale != 1.0:
             camera = window_camera.resized(*scaled_size(width, height, scale))
         s = self.settings
+        footprint = s.footprint
         splats = self.renderer.splats_at(t)
-        key = SortKey.of(camera, t, s.footprint)
+        key = SortKey.of(camera, t, footprint)
         if self._requested != (self._generation, key):
-            self.sorter.request(splats, camera, t, s.footprint, tag=self._generation)
+            self.sorter.request(splats, camera, t, footprint, tag=self._generation)
             self._requested = (self._generation, key)
         self._take_sort_result(self.sorter.poll())
-        if self._order is None or screenshot:  # first frame of a model, or a screenshot: wait for this view
+        # the first frame of a model, a screenshot, or the first frame after a cap or the near plane changed (an
+        # order of another footprint bounds nothing here): wait for the sort just requested
+        if self._order is None or screenshot or self._order.needs_sort(camera, footprint):
             self._take_sort_result(self.sorter.wait())
         if self._order is None:
             return
@@ -760,11 +765,11 @@ class ViewerApp:
         pick_lines = inspected[1] if inspected is not None else np.zeros((0, 2, 3))
         marks = self._selection_markers(camera)
         self.report["markers"] = len(marks) // 3
-        for lines, color in ((path_lines, PATH_COLOR), (box_lines, CROP_COLOR), (pick_lines, PICK_COLOR),
-                             (marks, SELECTION_COLOR), (self._measure_lines(camera), MEASURE_COLOR)):
-            if len(lines):
-                segs = np.concatenate([lines, segs])
-                colors = np.concatenate([np.broadcast_to(np.asarray(color, np.float32), (len(lines), 3)), colors])
+        layers = ((self._measure_lines(camera), MEASURE_COLOR), (marks, SELECTION_COLOR), (pick_lines, PICK_COLOR),
+                  (box_lines, CROP_COLOR), (path_lines, PATH_COLOR))  # drawn in this order, then the frustums
+        segs = np.concatenate([lines for lines, _ in layers] + [segs])
+        colors = np.concatenate([np.broadcast_to(np.asarray(color, np.float32), (len(lines), 3))
+                                 for lines, color in layers] + [colors])
         self.report["overlay_lines"] = len(segs)
         if len(segs):
             self.ctx.screen.use()
@@ -775,11 +780,16 @@ class ViewerApp:
         """Crosses (`selection.marker_segments`) at the centres of the selected Gaussians that are shown, at the
         displayed time."""
         ed, t = self._editor, self.playback.time
-        key = (self._generation, ed.edits.revision, t)
-        if ed.markers is None or ed.markers[0] != key:  # not every frame: a scan of the whole selection mask
-            shown = np.flatnonzero(ed.edits.selected[ed.shown_index])
-            ed.markers = (key, centres_at(self.renderer.splats_at(t), t, shown))
-        return marker_segments(ed.markers[1], camera)
+        selection = (self._generation, ed.edits.revision)
+        if ed.markers is None or ed.markers[0] != selection:  # a scan of the whole selection mask: on a change only
+            ed.markers = (selection, np.flatnonzero(ed.edits.selected[ed.shown_index]), None)
+        _, shown, centres = ed.markers
+        if not len(shown):
+            return np.zeros((0, 2, 3))
+        if centres is None or centres[0] != t:  # the centres move with time
+            centres = (t, centres_at(self.renderer.splats_at(t), t, shown))
+            ed.markers = (selection, shown, centres)
+        return marker_segments(centres[1], camera)
 
     def _overlay_geometry(self, width: int, height: int, depth: float):
         """(path polyline, `Frustums` of the path keys and dataset cameras), remade only when what they show
@@ -913,7 +923,7 @@ class ViewerApp:
         imgui.set_next_window_pos((10, 10), imgui.Cond_.first_use_ever)
         imgui.set_next_window_size((370, 0), imgui.Cond_.first_use_ever)
         imgui.begin("splat4d")
-        st, pb, s, c = self._stats, self.playback, self.settings, self.controller
+        st, pb = self._stats, self.playback
         imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
         imgui.text(f"sort {st.sort_ms:5.1f} ms  draw {st.frame.draw_ms + st.frame.upload_ms:5.1f} ms")
         imgui.text(f"visible {st.frame.visible:,} / {st.frame.total:,} Gaussians")
@@ -1076,12 +1086,10 @@ class ViewerApp:
         if imgui.button("Clear"):
             pe.path, pe.playing = None, False
         imgui.same_line()
-        if imgui.button("Stop" if pe.playing else "Play path") and pe.path is not None:
-            pe.playing = not pe.playing
-            if pe.playing:
-                pe.time = pe.path.start
+        if imgui.button("Stop" if pe.playing else "Play path"):
+            self._attempt(self._toggle_path)
         _, pe.file = imgui.input_text("path file", pe.file)
-        if imgui.button("Save") and pe.path is not None:
+        if imgui.button("Save"):
             self._attempt(self._save_path, f"saved camera path {pe.file} ({PATH_FORMATS[pe.nerfstudio]})")
         imgui.same_line()
         if imgui.button("Load"):
@@ -1096,10 +1104,24 @@ class ViewerApp:
             imgui.set_tooltip("nerfstudio: the path sampled at 30 FPS with each frame's scene time, for ns-render "
                               "camera-path (e.g. a dynamic NeRF of the same data); splat4d reads both")
 
+    def _path_or_error(self) -> CameraPath:
+        if self._path.path is None:
+            raise Splat4DError("no camera path: Add key, or Load a path file")
+        return self._path.path
+
+    def _toggle_path(self) -> None:
+        """Play the camera path from its start, or stop it."""
+        pe = self._path
+        if pe.playing:
+            pe.playing = False
+            return
+        pe.time, pe.playing = self._path_or_error().start, True
+
     def _save_path(self) -> None:
         """Write the edited path to the path file: its keys (splat4d), or its frames at the window's size (nerfstudio,
         `path_as_nerfstudio`)."""
         pe = self._path
+        self._path_or_error()
         if not pe.nerfstudio:
             pe.path.save(pe.file, force=pe.overwrite)
             return
@@ -1142,10 +1164,8 @@ class ViewerApp:
         if imgui.button("Delete (Del)"):
             self._attempt(self.delete_selected)
         imgui.same_line()
-        if imgui.button("Invert"):
-            shown = np.zeros(len(self.model), bool)
-            shown[ed.shown_index] = True
-            edits.invert_selection(among=shown)
+        if imgui.button("Invert"):  # among the Gaussians in the box (`invert_selection` leaves deleted ones out)
+            edits.invert_selection(among=self._in_box(self._crop.shown))
         if imgui.is_item_hovered():
             imgui.set_tooltip("select every Gaussian not selected (e.g. select the object, invert, delete)")
         imgui.same_line()
@@ -1172,6 +1192,8 @@ class ViewerApp:
         ce = self._crop
         if ce.box() != ce.shown and (not ce.dragging or ce.apply_ms < LIVE_CROP_MS):
             self._apply_edits(self.playback.time)
+            if not len(self.renderer.model):  # as `--crop` says of such a box, instead of an empty window
+                self.status = f"the crop box holds none of the {len(self.model):,} Gaussians"
 
     def _draw_inspect_ui(self) -> None:
         from imgui_bundle import imgui

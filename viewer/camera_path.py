@@ -475,7 +475,7 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
     Poses are OpenGL camera-to-world ``transform_matrix``; intrinsics come from ``fl_x/fl_y/cx/cy`` or
     ``camera_angle_x``; the image size from ``w/h`` or the first image (800x800 if neither is found).
     """
-    if Path(path).suffix == ".safetensors":
+    if Path(path).suffix.lower() == ".safetensors":
         if split not in ("train", None):
             raise CameraError(f"{path}: a checkpoint records its training cameras only, not a {split!r} split")
         return recorded_views(path)
@@ -504,11 +504,11 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
 def recorded_views(path: str | os.PathLike) -> list[DatasetView]:
     """The training cameras recorded in the splat4d checkpoint `path` (`splat4d.checkpoint`), read from its
     metadata alone; CameraError (one line) when it records none."""
-    from splat4d.checkpoint import read_metadata, recorded_views as from_metadata
+    from splat4d.checkpoint import read_metadata, views_in_metadata
     from splat4d.errors import CheckpointError
 
     try:
-        views = from_metadata(read_metadata(path), path)
+        views = views_in_metadata(read_metadata(path), path)
     except CheckpointError as exc:
         raise CameraError(str(exc)) from None
     if not views:

@@ -251,10 +251,15 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
     """
     kind = output_kind(out)
     path = Path(out)
+    if crf is not None and kind != "video":
+        raise OutputError(f"{out}: --crf sets the quality of .mp4 and .webm videos, not of images")
     if kind == "image" and frames is not None and frames > 1:
         raise OutputError(f"{out}: a single image takes one frame, not {frames}; use a folder for a sequence")
     if kind == "video":
         video_format(out, width, height, transparent, crf)
+        if spherical and path.suffix.lower() not in TAGGABLE_SUFFIXES:
+            warnings.warn(f"{out}: a {path.suffix.lower()} panorama carries no 360° tag (write .mp4 or .mov for "
+                          "players to show it as 360°)", stacklevel=3)
         with atomic_path(path, force) as tmp:
             writer = VideoWriter(tmp, width, height, fps, crf, transparent)
             try:

@@ -15,7 +15,8 @@ pixels, not clamped ones. The faces are sampled as premultiplied RGBA, for which
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -52,7 +53,6 @@ class Equirect:
 
     width: int
     height: int
-    _maps: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.width != 2 * self.height or self.height < 2:
@@ -79,8 +79,10 @@ class Equirect:
     def maps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(face ``[H, W]`` int8, x ``[H, W]``, y ``[H, W]`` float32): the face each panorama pixel looks through and
         where, in that face's pixel coordinates (cv2.remap's: pixel centres at integers). Made once per size."""
-        if self._maps:
-            return self._maps[0]
+        return self._maps
+
+    @cached_property
+    def _maps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         w, h = self.width, self.height
         lon = 2.0 * np.pi * ((np.arange(w) + 0.5) / w - 0.5)
         lat = np.pi * (0.5 - (np.arange(h) + 0.5) / h)
@@ -91,19 +93,33 @@ class Equirect:
         x, y, z = np.take_along_axis(local, face[None, ..., None], axis=0)[0].transpose(2, 0, 1)
         half = self.face_size / 2
         centre = half + FACE_MARGIN - 0.5
-        self._maps.append((face.astype(np.int8), (half * x / z + centre).astype(np.float32),
-                           (half * y / z + centre).astype(np.float32)))
-        return self._maps[0]
+        return (face.astype(np.int8), (half * x / z + centre).astype(np.float32),
+                (half * y / z + centre).astype(np.float32))
+
+    @cached_property
+    def _face_lookups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per face: (the flat indices of the panorama pixels it gives, and their x and y maps). The maps are laid
+        out in rows of W (padded with the face's first sample): cv2.remap takes maps under 32767 rows or columns,
+        and a face's pixels of a large panorama outnumber that."""
+        face, x, y = self._maps
+        w = self.width
+        out = []
+        for k in range(len(_FACES)):
+            idx = np.flatnonzero(face.reshape(-1) == k)
+            pad = -len(idx) % w
+            rows = [np.pad(m.reshape(-1)[idx], (0, pad), mode="edge").reshape(-1, w) for m in (x, y)]
+            out.append((idx, rows[0], rows[1]))
+        return out
 
     def assemble(self, faces: list[np.ndarray]) -> np.ndarray:
-        """The panorama ``[H, W, C]`` float32 from the six face images (top row first, in `face_cameras` order)."""
+        """The panorama ``[H, W, C]`` float32 from the six face images (top row first, in `face_cameras` order):
+        each face resampled (bilinearly) at its own panorama pixels only."""
         import cv2
 
-        face, x, y = self.maps()
-        out = np.zeros((self.height, self.width, faces[0].shape[-1]), np.float32)
-        for k, img in enumerate(faces):
-            sel = face == k
+        channels = faces[0].shape[-1]
+        out = np.zeros((self.height * self.width, channels), np.float32)
+        for (idx, x, y), img in zip(self._face_lookups, faces):
             sampled = cv2.remap(np.ascontiguousarray(img, np.float32), x, y, cv2.INTER_LINEAR,
                                 borderMode=cv2.BORDER_REPLICATE)
-            out[sel] = sampled[sel]
-        return out
+            out[idx] = sampled.reshape(-1, channels)[:len(idx)]
+        return out.reshape(self.height, self.width, channels)

@@ -33,7 +33,7 @@ import numpy as np
 
 from splat4d.cameras import Camera
 from splat4d.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TILE_SIZE
-from splat4d.covariance import TEMPORAL_FADES
+from splat4d.covariance import check_fade
 from splat4d.errors import GLError
 from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
 
@@ -131,8 +131,10 @@ class RenderSettings:
 
     def __post_init__(self) -> None:
         self.mode = parse_mode(self.mode)
-        if self.temporal_fade not in TEMPORAL_FADES:
-            raise GLError(f"unknown temporal fade {self.temporal_fade!r}; expected one of {', '.join(TEMPORAL_FADES)}")
+        try:
+            check_fade(self.temporal_fade)
+        except ValueError as exc:
+            raise GLError(str(exc)) from None
         if self.primitive not in PRIMITIVES:
             raise GLError(f"unknown splat primitive {self.primitive!r}; expected one of {', '.join(PRIMITIVES)}")
         if self.composite not in COMPOSITE_ORDERS:
@@ -405,9 +407,10 @@ class SplatRenderer:
         start = time.perf_counter()
         splats = self.splats_at(t)
         stats.upload_ms = (time.perf_counter() - start) * 1e3
-        if order is None or _needs_sort(order, camera, settings.footprint):
+        footprint = settings.footprint  # (validated anew on every access: once per frame)
+        if order is None or order.needs_sort(camera, footprint):
             before = self._order
-            order = self.sort(camera, t, settings.footprint)
+            order = self.sort(camera, t, footprint)
             stats.resorted = order is not before
             stats.sort_ms = order.ms if stats.resorted else 0.0
         stats.visible = order.visible
@@ -418,14 +421,15 @@ class SplatRenderer:
         tg.accum_fbo.use()
         tg.accum_fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if order.visible:
-            stats.drawn = self._draw_splats(camera, t, settings, splats, order)
+            stats.drawn = self._draw_splats(camera, t, settings, footprint, splats, order)
         self._resolve(settings, stats.value_range, target, viewport or (0, 0, camera.width, camera.height))
         if sync:
             self.ctx.finish()
         stats.draw_ms = (time.perf_counter() - start) * 1e3
         return stats
 
-    def _draw_splats(self, camera: Camera, t: float, settings: RenderSettings, splats, order: SortResult) -> int:
+    def _draw_splats(self, camera: Camera, t: float, settings: RenderSettings, footprint: Footprint, splats,
+                     order: SortResult) -> int:
         """Pre-pass + splats (points and/or quads, `_splat_runs`). Front to back, when `SortResult.hideable` says
         it pays, the order is drawn in stages (`_stages`); after each stage
         the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD, where the reference rasterizer stops) are
@@ -435,11 +439,11 @@ class SplatRenderer:
         ctx = self.ctx
         front_to_back = settings.composite == "front-to-back"
         # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
-        stale = order.key != SortKey.of(camera, t, settings.footprint)
+        stale = order.key != SortKey.of(camera, t, footprint)
         boxes = _boxes_for(order, camera) if stale else order.boxes
         indices = order.order[::-1] if front_to_back else order.order
         boxes = boxes[::-1] if front_to_back else boxes
-        self._set_pre_uniforms(camera, t, settings, splats)
+        self._set_pre_uniforms(camera, t, settings, splats, footprint)
         for prog in self._splat_progs.values():
             _set_uniforms(prog, u_size=(camera.width, camera.height), u_height=camera.height,
                           u_mode=RENDER_MODES.index(settings.mode), u_margin=self._point_margin,
@@ -588,7 +592,7 @@ class SplatRenderer:
                          stride=_SPLAT_BYTES, divisor=1)
 
     def _set_pre_uniforms(self, camera: Camera, t: float, settings: RenderSettings,
-                          splats: splatlib.SplatArrays) -> None:
+                          splats: splatlib.SplatArrays, footprint: Footprint) -> None:
         w2c = camera.w2c
         degree = splats.sh_degree if settings.sh_degree is None else max(0, min(int(settings.sh_degree),
                                                                                  splats.sh_degree))
@@ -596,8 +600,8 @@ class SplatRenderer:
                       u_trans=w2c[:3, 3], u_campos=camera.position,
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
-                      u_scale=settings.splat_scale, u_max_radius=footprint_caps(settings.footprint, camera.height),
-                      u_near=settings.near_plane, u_smooth_fade=settings.temporal_fade == "smooth",
+                      u_scale=footprint.scale, u_max_radius=footprint_caps(footprint, camera.height),
+                      u_near=footprint.near_plane, u_smooth_fade=settings.temporal_fade == "smooth",
                       u_sh_degree=degree, u_sh=0,
                       u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 
@@ -627,14 +631,15 @@ class SplatRenderer:
         if not (0 <= x < camera.width and 0 <= y < camera.height):
             raise GLError(f"pixel ({x}, {y}) is outside the {camera.width}x{camera.height} image")
         splats = self.splats_at(t)
-        order = self.sort(camera, t, settings.footprint)
+        footprint = settings.footprint
+        order = self.sort(camera, t, footprint)
         px, py = x + 0.5, y + 0.5
         b = order.boxes[::-1]  # nearest first
         near = (np.abs(px - b[:, 0]) <= b[:, 2]) & (np.abs(py - b[:, 1]) <= b[:, 3])
         idx = np.ascontiguousarray(order.order[::-1][near], dtype=np.uint32)
         if not idx.shape[0]:
             return composite_pixel(np.zeros((0, 16), np.float32), idx, (x, y))
-        self._set_pre_uniforms(camera, t, settings, splats)
+        self._set_pre_uniforms(camera, t, settings, splats, footprint)
         if self._targets is None:  # the pre-pass needs a framebuffer; any size will do, the last image is kept
             self._ensure_targets((camera.width, camera.height))
         out = self.ctx.buffer(reserve=_SPLAT_BYTES * idx.shape[0])
@@ -669,17 +674,6 @@ class SplatRenderer:
         if self._targets is not None:
             self._targets.release()
             self._targets = None
-
-
-def _needs_sort(order: SortResult, camera: Camera, footprint: Footprint) -> bool:
-    """Whether `order` (e.g. the app's newest finished sort) cannot be drawn for `camera` with `footprint`: it was
-    sorted with another footprint (just after a cap or the near plane changed: its boxes and culls bound nothing
-    here), or with a screen-radius cap for another image size (`_boxes_for` cannot rescale those boxes)."""
-    key = order.key
-    if key is None:
-        return False
-    return key.footprint != footprint or (math.isfinite(footprint.max_screen_radius)
-                                          and key.intrinsics[4:] != (camera.width, camera.height))
 
 
 def _boxes_for(order: SortResult, camera: Camera) -> np.ndarray:

@@ -73,10 +73,6 @@ class Footprint:
                 raise ValueError(f"{what} must be a positive number, got {given}")
             object.__setattr__(self, name, value)
 
-    @property
-    def capped(self) -> bool:
-        return math.isfinite(self.max_std_dev) or math.isfinite(self.max_screen_radius)
-
 
 @dataclass(frozen=True)
 class SortKey:
@@ -127,6 +123,17 @@ class SortResult:
     @property
     def visible(self) -> int:
         return int(self.order.shape[0])
+
+    def needs_sort(self, camera: Camera, footprint: Footprint) -> bool:
+        """Whether this order (e.g. the app's newest finished sort) cannot be drawn for `camera` with `footprint`:
+        it was sorted with another footprint (just after a cap or the near plane changed: its boxes and culls bound
+        nothing there), or with a screen-radius cap for another image size (the renderer's rescaling of boxes
+        sorted at another resolution does not hold for those). Orders of another view are drawn as they are."""
+        key = self.key
+        if key is None:
+            return False
+        return key.footprint != footprint or (math.isfinite(footprint.max_screen_radius)
+                                              and key.intrinsics[4:] != (camera.width, camera.height))
 
 
 def _view_params(camera: Camera) -> np.ndarray:
@@ -201,7 +208,8 @@ def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, caps, lims, m
     rr = 2.0 * math.log(o / alpha_min)  # squared cut-off radius in std-devs
     # Footprint caps, as splat_preprocess.glsl: std-devs, then pixels along the major axis (sqrt(lambda_1) px)
     rr = min(rr, caps[0] * caps[0])
-    rr = min(rr, caps[1] * caps[1] / (0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))))
+    if caps[1] < 1e30:  # (no screen cap: no lambda_1 to compute)
+        rr = min(rr, caps[1] * caps[1] / (0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) * (a - c) + b * b, 0.0))))
     hx = math.sqrt(rr * a) + 1.0  # + 1 px: float32 on the GPU, pixel-centre rounding
     hy = math.sqrt(rr * c) + 1.0
     u = fx * x * iz + cx

@@ -18,6 +18,7 @@ import struct
 from pathlib import Path
 
 from splat4d.errors import Splat4DError
+from splat4d.fileio import atomic_path
 
 SPHERICAL_UUID = bytes.fromhex("ffcc8263f8554a938814587a02521fdd")
 #: what the tag says: stitched (one image per frame), equirectangular, made by splat4d
@@ -154,16 +155,11 @@ def tag_equirectangular(path: str | os.PathLike) -> None:
     moov[trak_end:trak_end] = box
     _grow(moov, trak_start, trak_end - trak_start, len(box))
     _grow(moov, 0, moov_size, len(box))
-    tmp = path.with_name(path.name + ".tagging")
-    try:
-        with open(path, "rb") as src, open(tmp, "wb") as dst:
-            _copy(src, dst, moov_start)
-            dst.write(moov)
-            src.seek(moov_start + moov_size)
-            shutil.copyfileobj(src, dst, 1 << 20)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_path(path, force=True) as tmp, open(path, "rb") as src, open(tmp, "wb") as dst:
+        _copy(src, dst, moov_start)
+        dst.write(moov)
+        src.seek(moov_start + moov_size)
+        shutil.copyfileobj(src, dst, 1 << 20)
 
 
 def _copy(src, dst, count: int) -> None:

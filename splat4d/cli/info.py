@@ -25,6 +25,7 @@ def summarize(path, **options) -> dict:
 
     import numpy as np
 
+    from ..cameras import views_to_json
     from ..formats import load_model
     from ..model import model_bounds
 
@@ -45,9 +46,8 @@ def summarize(path, **options) -> dict:
     }
     if model.kind == "keyframed":
         out["num_frames"] = model.num_frames
-    views = getattr(ckpt, "views", None) or []
-    out["training_views"] = len(views)
-    out["training_cameras"] = len({id(v.camera) for v in views})  # views_from_json shares one Camera per camera
+    out["training_views"] = len(ckpt.views)
+    out["training_cameras"] = len(views_to_json(ckpt.views)["cameras"])  # each distinct camera once
     out.update(shape_stats(model, float(np.linalg.norm(np.asarray(hi, np.float64) - np.asarray(lo, np.float64)))))
     return out
 

@@ -112,7 +112,6 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
     from pathlib import Path
 
     from splat4d.errors import CameraError
@@ -142,6 +141,9 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--fov must be in (0, 180) degrees, got {args.fov}")
     if args.save_cameras:
         check_writable(args.save_cameras, args.force)
+        if Path(args.save_cameras).resolve() == Path(args.out).resolve():
+            raise OptionError(f"--save-cameras {args.save_cameras} is the --out file; give the cameras a file of "
+                              "their own")
     if output_kind(args.out) == "image":  # checked before any rendering: a still is one frame
         if args.frames is not None and args.frames > 1:
             raise OptionError(f"{args.out} holds one image, not {args.frames} frames; give a folder name for "
@@ -193,9 +195,6 @@ def run(args: argparse.Namespace) -> int:
     if mode == "path" and path is None:
         raise CameraError("--time-mode path needs --path or --cameras")
 
-    if equirect is not None and Path(args.out).suffix.lower() == ".webm":
-        print("note: a .webm panorama carries no 360° tag (write .mp4 or .mov for players to show it as 360°)",
-              file=sys.stderr)
     summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
                              progress=False if args.quiet else "render", crf=args.crf, equirect=equirect)
     if args.save_cameras:

@@ -71,7 +71,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "pixels are drawn then when a frame would take over --frame-budget)")
     p.add_argument("--sharp-playback", action="store_true",
                    help="lower the resolution only while the camera moves, not while the animation plays")
-    p.add_argument("--frame-budget", type=argtype(parse_positive), default=40.0, metavar="MS",
+    p.add_argument("--frame-budget", type=argtype(parse_positive), default=None, metavar="MS",
                    help="frame time the adaptive resolution aims for (default 40 ms)")
     p.add_argument("--inspect", type=argtype(parse_pixel), metavar="X,Y",
                    help="start with this window pixel inspected, as if Ctrl+clicked (column, row from the top left; "
@@ -114,6 +114,14 @@ def run(args: argparse.Namespace) -> int:
     if args.inspect and not (args.inspect[0] < args.size[0] and args.inspect[1] < args.size[1]):
         raise OptionError(f"--inspect {args.inspect[0]},{args.inspect[1]} is outside the {args.size[0]}x"
                           f"{args.size[1]} window")
+    if args.select:
+        x0, y0, x1, y1 = args.select
+        if max(x0, x1) <= 0 or max(y0, y1) <= 0 or min(x0, x1) >= args.size[0] or min(y0, y1) >= args.size[1]:
+            raise OptionError(f"--select {x0:g},{y0:g},{x1:g},{y1:g} lies outside the {args.size[0]}x{args.size[1]} "
+                              "window")
+    if args.no_adaptive_resolution and (args.sharp_playback or args.frame_budget is not None):
+        raise OptionError("--sharp-playback and --frame-budget tune the adaptive resolution, which "
+                          "--no-adaptive-resolution turns off")
     if not any(abs(args.render_scale - step) < 1e-9 for step in RESOLUTION_STEPS):
         raise OptionError(f"--render-scale must be a multiple of 1/8 between 0.25 and 1 (0.25, 0.375, 0.5, ... 1), "
                           f"got {args.render_scale}")
@@ -125,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, play_path=args.play_path,
                          screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
-                         adaptive_resolution=not args.no_adaptive_resolution, frame_budget_ms=args.frame_budget,
+                         adaptive_resolution=not args.no_adaptive_resolution,
+                         frame_budget_ms=AppOptions.frame_budget_ms if args.frame_budget is None else args.frame_budget,
                          lower_while_playing=not args.sharp_playback, exit_after=args.exit_after,
                          screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop,
                          inspect=args.inspect, select=args.select)

@@ -150,3 +150,25 @@ def test_cli_train_refuse_stop_resume_and_eval(tiny, tmp_path, capsys):
     assert {"psnr", "ssim", "per_view", "seconds"} <= set(res) and len(res["per_view"]) == 4
     assert all(np.isfinite(v["psnr"]) for v in res["per_view"])
     assert main(["eval", str(out), str(tiny), "--json", str(js)]) == 1  # no clobbering without --force
+
+
+def test_cli_train_says_which_background_and_resume_keeps_the_recorded_one(tiny, tmp_path, capsys):
+    out = tmp_path / "bg.safetensors"
+    args = ["train", str(tiny), "--out", str(out), "--iters", "4", "--num-gaussians", "300", "--quiet"]
+    assert main(args + ["--stop-at", "2"]) == 0
+    said = capsys.readouterr().out
+    assert "background white: the D-NeRF layout's convention" in said  # the samples are D-NeRF layout RGBA
+    assert "alpha agrees between views" in said
+    assert load_checkpoint(out).background == (1.0, 1.0, 1.0)
+    assert load_checkpoint(out).training["background_reason"].startswith("the D-NeRF layout's convention")
+    # a run started on black (e.g. before the white convention) resumes on black, not on today's default
+    black = tmp_path / "black.safetensors"
+    args_black = ["train", str(tiny), "--out", str(black), "--iters", "4", "--num-gaussians", "300", "--quiet"]
+    assert main(args_black + ["--stop-at", "2", "--background", "0", "0", "0"]) == 0
+    assert "background black: --background\n" in capsys.readouterr().out
+    assert main(args_black + ["--resume"]) == 0
+    assert "background black: the resumed checkpoint's" in capsys.readouterr().out
+    ck = load_checkpoint(black)
+    assert ck.background == (0.0, 0.0, 0.0) and ck.training["iteration"] == 4
+    assert main(args + ["--resume", "--background", "2", "0", "0"]) == 1
+    assert "--background must be three numbers in [0, 1]" in capsys.readouterr().err

@@ -88,9 +88,39 @@ def test_dnerf_layout(tmp_path):
     make_dnerf(tmp_path)
     ds = load_dataset(tmp_path)
     assert ds.layout == "dnerf" and len(ds.train) == 4 and len(ds.test) == 4
-    assert ds.train[0].alpha is not None and ds.background == (0.0, 0.0, 0.0)
+    # RGBA D-NeRF data composites on white, the layout's convention (D-NeRF's configs, 4DGaussians)
+    assert ds.train[0].alpha is not None and ds.background == (1.0, 1.0, 1.0)
+    assert "D-NeRF" in ds.background_reason
     assert ds.time_range == (0.0, 1.0)
     check_reprojection(ds, P_ZUP)
+
+
+@pytest.mark.parametrize("declared, expected", [([0, 0, 0], (0.0, 0.0, 0.0)), ("black", (0.0, 0.0, 0.0)),
+                                                ([0.5, 0.25, 1], (0.5, 0.25, 1.0)), ("White", (1.0, 1.0, 1.0))])
+def test_dnerf_background_from_json_and_override(tmp_path, declared, expected):
+    make_dnerf(tmp_path)
+    meta = json.loads((tmp_path / "transforms_train.json").read_text())
+    (tmp_path / "transforms_train.json").write_text(json.dumps({**meta, "background": declared}))
+    ds = load_dataset(tmp_path)
+    assert ds.background == expected and "transforms_train.json" in ds.background_reason
+    ds = load_dataset(tmp_path, background=(0.2, 0.3, 0.4))  # the user's --background wins over the JSON
+    assert ds.background == (0.2, 0.3, 0.4) and ds.background_reason == "--background"
+
+
+@pytest.mark.parametrize("declared", [[1, 1], [0, 0, 2], "grey", [0, "x", 0], None])
+def test_bad_background_in_json_is_one_line(tmp_path, declared, capsys):
+    make_dnerf(tmp_path)
+    meta = json.loads((tmp_path / "transforms_train.json").read_text())
+    if declared is None:  # null: the key present but empty is no declaration
+        (tmp_path / "transforms_train.json").write_text(json.dumps({**meta, "background": None}))
+        assert load_dataset(tmp_path).background == (1.0, 1.0, 1.0)
+        return
+    (tmp_path / "transforms_train.json").write_text(json.dumps({**meta, "background": declared}))
+    with pytest.raises(DatasetError, match="'background' must be"):
+        load_dataset(tmp_path)
+    assert main(["train", str(tmp_path), "--out", str(tmp_path / "m.safetensors")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'background' must be" in err
 
 
 def test_dnerf_val_split_and_per_frame_intrinsics(tmp_path):
@@ -117,6 +147,7 @@ def test_orbit_layout(tmp_path):
             cv2.imwrite(str(tmp_path / "views" / str(v) / f"{f:02d}.png"), dot_image(32, 32, uv))
     ds = load_dataset(tmp_path)
     assert ds.layout == "orbit" and len(ds.train) == 9 and ds.background == (1.0, 1.0, 1.0)
+    assert ds.background_reason == "RGB images generated on white"
     assert sorted({v.time for v in ds.train}) == [0.0, 0.5, 1.0]
     assert ds.train[0].alpha is not None  # mask derived from the white background
     check_reprojection(ds, P_YUP)

@@ -85,6 +85,9 @@ class TrainConfig:
     lambda_mask: float = 0.1
     #: Efficient4D's inconsistency-aware confidence weights on the L1 and D-SSIM terms.
     confidence: bool = False
+    #: Train on every pixel's alpha as given even where the views contradict each other (`alpha_conflicts`);
+    #: by default transparent pixels that contradict surfaces other views see get no loss.
+    strict_alpha: bool = False
     #: Temporal smoothness weight (velocity of each Gaussian against its spatial neighbours'; 0: off).
     smooth_weight: float = 0.0
     #: Static-to-dynamic (SV4D): the first `static_iters` steps fit only the first frame's views, time frozen.

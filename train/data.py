@@ -3,12 +3,17 @@
 Every layout becomes a `Dataset` of `View`s (an image, its optional alpha mask, a `splat4d.cameras.Camera`, a time
 and the view / frame indices). Layouts, auto-detected by `detect_layout` (see README "Training data"):
 
-* ``dnerf``: ``transforms_{train,test,val}.json`` + images (Blender/NeRF OpenGL c2w poses, time in [0, 1]).
+* ``dnerf``: ``transforms_{train,test,val}.json`` + images (Blender/NeRF OpenGL c2w poses, time in [0, 1]); RGBA
+  images are composited on white, the layout's convention (D-NeRF's ``configs/*.txt`` set ``white_bkgd = True``,
+  4DGaussians' ``ModelParams`` defaults ``white_background = True``).
 * ``orbit``: a generic orbit image matrix ``views/<v>/<f>.png`` + ``cameras.json`` (elevation, azimuth, radius,
   fov per view).
 * ``efficient4d``: Efficient4D stage-1 output, ``<f>.png`` strips of 16 SyncDreamer views (white background),
   optional ``ref/<f>.png`` reference video frames.
 * ``sv4d``: SV4D / SV4D 2.0 output, one ``*_v00k.mp4`` per view plus ``*_process_input.mp4`` (white background).
+
+Every reader says which background its images are composited on and why (`Dataset.background_reason`): a
+``background`` key in the layout's JSON wins over the layout's convention, and the caller's override over both.
 
 Images are kept as uint8 (RGB ``[H, W, 3]``, alpha ``[H, W]`` or None) and converted per batch by the trainer.
 """
@@ -59,6 +64,8 @@ class Dataset:
     layout: str
     root: Path
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Why this background: the layout's convention, the dataset's JSON, or the caller's override.
+    background_reason: str = "the layout's default"
     up: str = "z"
     meta: dict = field(default_factory=dict)
 
@@ -168,9 +175,30 @@ def _time_of(i: int, n: int) -> float:
     return i / (n - 1) if n > 1 else 0.0
 
 
+NAMED_BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
+
+
+def json_background(meta: dict, where: Path) -> tuple[float, float, float] | None:
+    """The ``background`` a dataset's JSON declares (``[r, g, b]`` in [0, 1], or "white" / "black"), else None."""
+    value = meta.get("background")
+    if value is None:
+        return None
+    if isinstance(value, str) and value.lower() in NAMED_BACKGROUNDS:
+        return NAMED_BACKGROUNDS[value.lower()]
+    try:
+        rgb = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        rgb = ()
+    if len(rgb) != 3 or not all(math.isfinite(x) and 0.0 <= x <= 1.0 for x in rgb):
+        raise DatasetError(f"{where}: 'background' must be [r, g, b] in [0, 1], \"white\" or \"black\", "
+                           f"got {value!r}")
+    return rgb
+
+
 # --- D-NeRF ----------------------------------------------------------------------------------------------------
 
-def _dnerf_split(root: Path, split: str) -> list[View]:
+def _dnerf_split(root: Path, split: str) -> tuple[list[View], dict]:
+    """The views of ``transforms_<split>.json`` and the JSON itself."""
     meta = _load_json(root / f"transforms_{split}.json")
     frames = meta.get("frames")
     if not isinstance(frames, list) or not frames:
@@ -201,7 +229,7 @@ def _dnerf_split(root: Path, split: str) -> list[View]:
     sizes = {v.size for v in views}
     if len(sizes) > 1:
         raise DatasetError(f"{root}: images of different sizes in split {split}: {sorted(sizes)[:3]}")
-    return views
+    return views, meta
 
 
 def _group_ids(views: list[View]) -> list[View]:
@@ -219,13 +247,18 @@ def _group_ids(views: list[View]) -> list[View]:
 
 
 def read_dnerf(root: Path, **_) -> Dataset:
-    train = _group_ids(_dnerf_split(root, "train"))
+    train, meta = _dnerf_split(root, "train")
+    train = _group_ids(train)
     test_split = "test" if (root / "transforms_test.json").exists() else \
         "val" if (root / "transforms_val.json").exists() else None
-    test = _group_ids(_dnerf_split(root, test_split)) if test_split else []
-    has_alpha = train[0].alpha is not None
-    return Dataset(train, test, "dnerf", root, background=(0.0, 0.0, 0.0) if has_alpha else (1.0, 1.0, 1.0),
-                   up="z", meta={"test_split": test_split})
+    test = _group_ids(_dnerf_split(root, test_split)[0]) if test_split else []
+    declared = json_background(meta, root / "transforms_train.json")
+    if declared is not None:
+        bg, why = declared, "the 'background' of transforms_train.json"
+    else:
+        bg, why = (1.0, 1.0, 1.0), "the D-NeRF layout's convention (D-NeRF and 4DGaussians composite on white)"
+    return Dataset(train, test, "dnerf", root, background=bg, background_reason=why, up="z",
+                   meta={"test_split": test_split})
 
 
 # --- generic orbit image matrix -------------------------------------------------------------------------------
@@ -273,10 +306,17 @@ def read_orbit(root: Path, **_) -> Dataset:
     train = _orbit_views(root, "views", specs, meta, times)
     test = _orbit_views(root, "test_views", meta["test_views"], meta, meta.get("test_times")) \
         if meta.get("test_views") else []
-    bg = tuple(float(x) for x in meta.get("background", (1, 1, 1) if train[0].alpha is None else (0, 0, 0)))
+    bg = json_background(meta, root / "cameras.json")
+    if bg is not None:
+        why = "the 'background' of cameras.json"
+    elif train[0].alpha is None:
+        bg, why = (1.0, 1.0, 1.0), "RGB images generated on white"
+    else:
+        bg, why = (0.0, 0.0, 0.0), "the orbit layout's default for RGBA images"
     if train[0].alpha is None:
         train = [replace(v, alpha=mask_from_white(v.image)) for v in train]
-    return Dataset(train, test, "orbit", root, background=bg, up=meta.get("up", "z"), meta=meta)
+    return Dataset(train, test, "orbit", root, background=bg, background_reason=why, up=meta.get("up", "z"),
+                   meta=meta)
 
 
 # --- Efficient4D stage 1 --------------------------------------------------------------------------------------
@@ -314,7 +354,8 @@ def read_efficient4d(root: Path, views: int = E4D_VIEWS, **_) -> Dataset:
                 rgb = (rgb * a + 255 * (1 - a) + 0.5).astype(np.uint8)
             out.append(View(rgb, alpha if alpha is not None else mask_from_white(rgb), cam, _time_of(f, n),
                             views, f, str(path)))
-    return Dataset(out, [], "efficient4d", root, background=(1.0, 1.0, 1.0), up="z",
+    return Dataset(out, [], "efficient4d", root, background=(1.0, 1.0, 1.0),
+                   background_reason="Efficient4D's views are generated on white", up="z",
                    meta={"views": views, "frames": n, "reference": ref.is_dir()})
 
 
@@ -370,7 +411,8 @@ def read_sv4d(root: Path, variant: str | None = None, elevation: float | None = 
             h, w = rgb.shape[:2]
             cam = orbit(elev, azimuths[v], SV4D_RADIUS, SV4D_FOV, w, h, up="y")
             out.append(View(rgb, mask_from_white(rgb), cam, _time_of(f, n), v, f, f"{path}[{f}]"))
-    return Dataset(out, [], "sv4d", root, background=(1.0, 1.0, 1.0), up="y",
+    return Dataset(out, [], "sv4d", root, background=(1.0, 1.0, 1.0),
+                   background_reason="SV4D's views are generated on white", up="y",
                    meta={"variant": variant, "elevation": elev, "prefix": prefix})
 
 
@@ -419,5 +461,8 @@ def load_dataset(root: str | Path, layout: str = "auto", downscale: int = 1,
         ds.train = [downscale_view(v, downscale) for v in ds.train]
         ds.test = [downscale_view(v, downscale) for v in ds.test]
     if background is not None:
-        ds.background = tuple(float(x) for x in background)
+        rgb = tuple(float(x) for x in background)
+        if len(rgb) != 3 or not all(math.isfinite(x) and 0.0 <= x <= 1.0 for x in rgb):
+            raise DatasetError(f"--background must be three numbers in [0, 1], got {' '.join(map(str, background))}")
+        ds.background, ds.background_reason = rgb, "--background"
     return ds

@@ -51,3 +51,34 @@ def evaluate(model: Model, views: list[View], background, device="cpu", progress
         "lpips": None, "lpips_note": LPIPS_NOTE, "num_views": len(per_view), "per_view": per_view,
         "seconds": time.perf_counter() - start,
     }
+
+
+def _same_camera(test: View, train: list[View]) -> list[View]:
+    """The training views of the camera nearest to `test`'s (equal poses when the test camera is a training one;
+    else the nearest centre, ties broken by viewing direction)."""
+    def distance(v: View) -> float:
+        return float(np.linalg.norm(v.camera.position - test.camera.position)
+                     + 0.1 * np.linalg.norm(v.camera.forward - test.camera.forward))
+
+    best = min(distance(v) for v in train)
+    return [v for v in train if distance(v) <= best + 1e-6]
+
+
+def baselines(views: list[View], train: list[View], background) -> dict:
+    """PSNR of two trivial predictors of each view in `views`, from the training views of the same (or nearest)
+    camera: its training image nearest in time (`nearest_image`), and its per-pixel median image
+    (`median_image`). A trained model has to beat both by a wide margin to have learnt anything."""
+    scores: dict[str, list[float]] = {"nearest_image": [], "median_image": []}
+    medians: dict[int, torch.Tensor] = {}
+    for v in views:
+        target, _ = view_target(v, background)
+        same = _same_camera(v, train)
+        if {u.size for u in same} != {v.size}:
+            continue
+        near = min(same, key=lambda u: abs(u.time - v.time))
+        scores["nearest_image"].append(psnr(view_target(near, background)[0], target))
+        key = id(same[0])
+        if key not in medians:
+            medians[key] = torch.stack([view_target(u, background)[0] for u in same]).median(0).values
+        scores["median_image"].append(psnr(medians[key], target))
+    return {k: float(np.mean(x)) if x else None for k, x in scores.items()}

@@ -23,6 +23,7 @@ from splat4d.fileio import atomic_path
 from splat4d.model import Gaussians4D
 
 from . import strategy
+from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import TrainConfig
 from .confidence import confidence_maps
 from .data import Dataset, View, downscale_view
@@ -100,6 +101,8 @@ class Trainer:
         self.losses: list[float] = []
         self._views_at: dict[int, list[View]] = {1: dataset.train}
         self._conf = self._confidence() if config.confidence else {}
+        self.alpha_conflicts: AlphaConflicts = find_alpha_conflicts(dataset)
+        self._alpha_weight: dict[tuple[int, int], torch.Tensor | None] = {}
         if resume:
             self._resume()
         else:
@@ -208,6 +211,28 @@ class Trainer:
             return pool[int(torch.randint(len(pool), (1,), generator=self.generator))]
         return int(torch.randint(len(self.ds.train), (1,), generator=self.generator))
 
+    def _loss_weights(self, i: int, factor: int) -> tuple[torch.Tensor | None, ...]:
+        """Per-pixel weights of training image `i` at 1/`factor` resolution for the L1, D-SSIM and alpha terms:
+        the confidence maps (full resolution only) times the alpha-conflict weight (0 where the image's
+        transparency contradicts the other views, unless `strict_alpha`)."""
+        key = (i, factor)
+        if key not in self._alpha_weight:
+            w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected else \
+                self.alpha_conflicts.weight(self.ds.train[i])
+            if w is not None and factor > 1:
+                import cv2
+
+                size = self._views(factor)[i].size
+                w = cv2.resize(w, size, interpolation=cv2.INTER_AREA)
+            self._alpha_weight[key] = None if w is None else torch.from_numpy(w).to(self.device)
+        w_alpha = self._alpha_weight[key]
+        conf = self._conf.get(i) if factor == 1 else None
+        if conf is None:
+            return w_alpha, w_alpha, w_alpha
+        if w_alpha is None:
+            return conf[0], conf[1], None
+        return conf[0] * w_alpha, conf[1] * w_alpha, w_alpha
+
     def train_step(self) -> tuple[float, float]:
         cfg = self.cfg
         for g in self.optimizer.param_groups:
@@ -226,11 +251,10 @@ class Trainer:
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
             if cfg.densify.enabled:
                 out.means2d.retain_grad()
-            conf = self._conf.get(i) if factor == 1 else None
-            loss = cfg.lambda_l1 * l1(out.rgb, target, conf[0] if conf else None) \
-                + cfg.lambda_dssim * dssim(out.rgb, target, conf[1] if conf else None)
+            w_rgb, w_ssim, w_alpha = self._loss_weights(i, factor)
+            loss = cfg.lambda_l1 * l1(out.rgb, target, w_rgb) + cfg.lambda_dssim * dssim(out.rgb, target, w_ssim)
             if mask is not None and cfg.lambda_mask:
-                loss = loss + cfg.lambda_mask * l1(out.alpha, mask)
+                loss = loss + cfg.lambda_mask * l1(out.alpha, mask, w_alpha)
             if cfg.smooth_weight and not static:
                 if self._nbr is None or self.step % 100 == 0:
                     self._nbr = knn(self.params["means"].detach(), k=8)
@@ -271,8 +295,11 @@ class Trainer:
         model = Gaussians4D(**{k: v.detach().cpu() for k, v in self.params.items()},
                             sh_degree=self.cfg.sh_degree, sh_degree_t=self.cfg.sh_degree_t,
                             time_range=self.time_range, rotation_convention=self.cfg.rotation_convention)
+        found = self.alpha_conflicts
         training = {**self.cfg.to_dict(), "iteration": self.step, "dataset": str(self.ds.root),
-                    "layout": self.ds.layout}
+                    "layout": self.ds.layout, "background_reason": self.ds.background_reason,
+                    "alpha_disagreement": round(found.worst_share, 4) if found.checked else None,
+                    "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha)}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
                         provenance={"tool": "splat4d train", "preset": self.cfg.preset}, training=training,
                         views=[DatasetView(_relative_name(v.name, self.ds.root), v.camera, v.time)

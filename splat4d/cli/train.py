@@ -36,8 +36,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="dataset layout (default: detect)")
     p.add_argument("--downscale", type=int, default=1, metavar="K", help="train on images K times smaller")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
-                   help="background colour in [0,1] (default: the layout's: black for RGBA D-NeRF, white for "
-                        "generated RGB data)")
+                   help="background colour in [0,1] that RGBA images are composited on (default: the dataset "
+                        "JSON's 'background', else the layout's convention: white for D-NeRF, Efficient4D and SV4D, "
+                        "black for RGBA orbit data; a resumed run keeps its checkpoint's)")
+    p.add_argument("--strict-alpha", action="store_true",
+                   help="train on the alpha as given even where views contradict each other (default: transparent "
+                        "pixels whose rays cross a surface other views see opaque get no loss)")
     p.add_argument("--num-gaussians", type=int, help="Gaussians at initialisation")
     p.add_argument("--init-mesh", metavar="FILE", help="initialise on the surface of this mesh (4DGen)")
     p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree")
@@ -66,7 +70,7 @@ def config_from_args(args: argparse.Namespace, resumed: dict | None = None):
         cfg = cfg.scaled(args.iters)
     elif args.iters:
         cfg = dataclasses.replace(cfg, iters=args.iters)
-    over = {"seed": args.seed if not resumed else cfg.seed, "num_gaussians": args.num_gaussians,
+    over = {"seed": args.seed if not resumed else cfg.seed, "strict_alpha": args.strict_alpha or None, "num_gaussians": args.num_gaussians,
             "init_mesh": args.init_mesh, "sh_degree": args.sh_degree, "sh_degree_t": args.sh_degree_t,
             "static_iters": args.static_iters, "resolution_ramp": args.resolution_ramp,
             "smooth_weight": args.smooth_weight, "batch_size": args.batch_size,
@@ -76,11 +80,18 @@ def config_from_args(args: argparse.Namespace, resumed: dict | None = None):
     return dataclasses.replace(cfg, **{k: v for k, v in over.items() if v is not None})
 
 
+def background_name(rgb) -> str:
+    """'white', 'black' or 'R G B' for a background colour."""
+    names = {(1.0, 1.0, 1.0): "white", (0.0, 0.0, 0.0): "black"}
+    return names.get(tuple(float(x) for x in rgb), " ".join(f"{x:g}" for x in rgb))
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from splat4d.checkpoint import read_metadata
     from splat4d.errors import Splat4DError
+    from splat4d.train.alpha_conflicts import describe
     from splat4d.train.data import load_dataset
     from splat4d.train.trainer import Trainer
 
@@ -88,17 +99,25 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if v is not None and v < 1:
             raise Splat4DError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
-    resumed = None
+    resumed, recorded_bg = None, None
     if args.resume:
         if not Path(args.out).exists():
             raise Splat4DError(f"--resume: {args.out} does not exist")
-        resumed = read_metadata(args.out).get("training") or None
+        meta = read_metadata(args.out)
+        resumed = meta.get("training") or None
         if resumed:
-            resumed = {k: v for k, v in resumed.items() if k not in ("iteration", "dataset", "layout")}
+            resumed = {k: v for k, v in resumed.items() if k not in ("iteration", "dataset", "layout", "background_reason",
+                                                           "alpha_disagreement", "alpha_ignored")}
+        recorded_bg = meta.get("background")
     cfg = config_from_args(args, resumed)
     ds = load_dataset(args.data, layout=args.layout, downscale=args.downscale, background=args.background)
+    if recorded_bg is not None and args.background is None:  # a run keeps the background it started with
+        ds.background, ds.background_reason = tuple(float(x) for x in recorded_bg), "the resumed checkpoint's"
     print(f"splat4d train: {ds.summary()}; preset {cfg.preset}, {cfg.iters} iterations")
+    print(f"splat4d train: background {background_name(ds.background)}: {ds.background_reason}"
+          + ("" if ds.background_reason == "--background" else "; --background R G B to change"))
     trainer = Trainer(ds, cfg, args.out, resume=args.resume, force=args.force, progress=not args.quiet)
+    print(f"splat4d train: {describe(trainer.alpha_conflicts, cfg.strict_alpha, ds.train)}")
     try:
         result = trainer.run(stop_at=args.stop_at)
     except KeyboardInterrupt:

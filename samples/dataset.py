@@ -28,7 +28,7 @@ import os
 import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -38,8 +38,8 @@ from splat4d.cameras import Camera, fov_from_focal, orbit
 from splat4d.errors import Splat4DError
 from splat4d.fileio import atomic_dir, check_writable
 
-from .objects import SampleConfigError, SampleObject, get_sample
-from .render import AMBIENT, DIFFUSE, LIGHT_DIR, MeshRenderer
+from .objects import OBJECTS, SampleConfigError, SampleObject, get_sample
+from .render import AMBIENT, DIFFUSE, FAR, LIGHT_DIR, MeshRenderer
 
 #: Bump when the rendered bytes of a sample change (geometry, colours, lighting, cameras, antialiasing).
 GENERATOR_VERSION = 1
@@ -150,7 +150,13 @@ def _clean(x: float) -> float:
 
 def transforms_json(views: list[View], config: DatasetConfig) -> dict:
     """The ``transforms_<split>.json`` content for `views`."""
-    cam = _camera(config, config.elevation, 0.0)
+    return transforms_for(views, _camera(config, config.elevation, 0.0))
+
+
+def transforms_for(views: list[View], intrinsics: Camera) -> dict:
+    """The ``transforms_<split>.json`` content for `views`, whose cameras all share the intrinsics and image size
+    of the camera `intrinsics` (written once at the top level; the split may be empty)."""
+    cam = intrinsics
     frames = [{"file_path": v.file_path, "time": _clean(v.time),
                "transform_matrix": [[_clean(x) for x in row] for row in v.camera.to_opengl_c2w()],
                "w": cam.width, "h": cam.height} for v in views]
@@ -175,14 +181,16 @@ def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer
     }
 
 
-def render_views(obj: SampleObject, views: list[View], renderer: MeshRenderer) -> Iterator[tuple[View, np.ndarray]]:
-    """Yield (view, RGBA image) in the order of `views`, evaluating the mesh once per run of equal times."""
+def render_views(obj: SampleObject, views: list[View], renderer: MeshRenderer,
+                 far: float = FAR) -> Iterator[tuple[View, np.ndarray]]:
+    """Yield (view, RGBA image) in the order of `views`, evaluating the mesh once per run of equal times; `far` is
+    the far clip of every image (see `MeshRenderer.draw`)."""
     current = None
     for v in views:
         if current != v.time:
             renderer.upload(obj.mesh(v.time))
             current = v.time
-        yield v, renderer.draw(v.camera)
+        yield v, renderer.draw(v.camera, far)
 
 
 def write_png(path: Path, rgba: np.ndarray) -> None:
@@ -204,7 +212,8 @@ def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | Non
     """Render sample `name` to a D-NeRF layout dataset folder `out` (atomically; see module doc).
 
     Args:
-        name: a key of `SAMPLES`.
+        name: a key of `SAMPLES`, or of `SCENES` (a scene brings its own camera rig and config type, e.g.
+            ``floor`` takes a `FloorConfig`; see `splat4d.samples.floor`).
         out: destination folder; refused if it exists unless `force`.
         config: cameras, times and image size (defaults: 16 views x 16 frames at 256 px, 16 test images).
         progress: show a tqdm bar over images.
@@ -212,26 +221,46 @@ def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | Non
     Returns:
         The dataset folder.
     """
+    obj = get_sample(name)
+    if name not in OBJECTS:  # a scene: its own rig, config and sample.json
+        return obj.write_dataset(out, config, force=force, progress=progress, renderer=renderer)
+    if config is not None and not isinstance(config, DatasetConfig):
+        raise SampleConfigError(f"sample {name!r} takes a DatasetConfig, got {type(config).__name__}")
+    config = config or DatasetConfig()
+    train, test = train_views(config), test_views(config)
+    return write_layout(out, obj, train, test, _camera(config, config.elevation, 0.0),
+                        lambda r: sample_json(obj, config, r, len(train), len(test)), force=force,
+                        progress=progress, renderer=renderer)
+
+
+def write_layout(out: str | os.PathLike, obj: SampleObject, train: list[View], test: list[View],
+                 intrinsics: Camera, info: Callable[[MeshRenderer], dict], far: float = FAR, force: bool = False,
+                 progress: bool = False, renderer: MeshRenderer | None = None) -> Path:
+    """Render the `train` and `test` views of `obj` and write them to `out` in the D-NeRF layout, atomically.
+
+    Args:
+        intrinsics: a camera with the intrinsics and image size that every view shares (top level of the JSON).
+        info: makes the ``sample.json`` content from the renderer used (its antialiasing is recorded).
+        far: far clip of every image (`MeshRenderer.draw`).
+    The val split repeats the test split (D-NeRF's own loader needs it).
+    """
     from tqdm import tqdm
 
-    config = config or DatasetConfig()
-    obj = get_sample(name)
     out = check_writable(out, force)
-    train, test = train_views(config), test_views(config)
     own = renderer is None
     if own:
         renderer = MeshRenderer()
     try:
-        with atomic_dir(out, force) as tmp, tqdm(total=len(train) + len(test), desc=f"sample {name}", unit="img",
-                                                 disable=not progress) as bar:
+        with atomic_dir(out, force) as tmp, tqdm(total=len(train) + len(test), desc=f"sample {obj.name}",
+                                                 unit="img", disable=not progress) as bar:
             for split, views in (("train", train), ("test", test)):
                 (tmp / split).mkdir()
-                for view, rgba in render_views(obj, views, renderer):
+                for view, rgba in render_views(obj, views, renderer, far):
                     write_png(tmp / f"{view.file_path}.png", rgba)
                     bar.update(1)
-                _write_json(tmp / f"transforms_{split}.json", transforms_json(views, config))
-            _write_json(tmp / "transforms_val.json", transforms_json(test, config))
-            _write_json(tmp / "sample.json", sample_json(obj, config, renderer, len(train), len(test)))
+                _write_json(tmp / f"transforms_{split}.json", transforms_for(views, intrinsics))
+            _write_json(tmp / "transforms_val.json", transforms_for(test, intrinsics))
+            _write_json(tmp / "sample.json", info(renderer))
     finally:
         if own:
             renderer.release()

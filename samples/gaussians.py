@@ -39,7 +39,7 @@ from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4
 from splat4d.model import Gaussians4D
 
 from .geometry import face_areas, farthest_point_subset, points_on_surface, sample_surface
-from .objects import SampleConfigError, get_sample
+from .objects import OBJECTS, SampleConfigError, get_sample
 from .render import shade
 
 #: Tangent std-dev of a disc as a fraction of the local point spacing sqrt(area per point).
@@ -81,6 +81,9 @@ def build_model(name: str, num_gaussians: int = 20000, frames: int = 16, seed: i
     if num_gaussians < 1:
         raise SampleConfigError(f"num_gaussians must be >= 1, got {num_gaussians}")
     obj = get_sample(name)
+    if name not in OBJECTS:
+        raise SampleConfigError(f"a Gaussian model cannot be built for sample {name!r}: it is a scene whose floor "
+                                "runs to the horizon, not a bounded object; train one on its dataset instead")
     keys = segment_times(frames)
     num_segments = len(keys) - 1
     step = 1.0 / (frames - 1)

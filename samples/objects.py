@@ -241,11 +241,16 @@ SAMPLES: dict[str, str] = {name: type(o).description for name, o in OBJECTS.item
 
 
 def get_sample(name: str) -> SampleObject:
-    """The object called `name`; raises `UnknownSampleError` listing the known names."""
-    try:
+    """The object or scene called `name` (a key of `SAMPLES` or of `SCENES`); raises `UnknownSampleError` listing
+    the known names."""
+    if name in OBJECTS:
         return OBJECTS[name]
-    except KeyError:
-        raise UnknownSampleError(f"unknown sample {name!r}; choose one of: {', '.join(OBJECTS)}") from None
+    # Scenes (samples.floor) are built from the objects above, so that module imports this one: import it late.
+    from .floor import SCENE_OBJECTS
+
+    if name in SCENE_OBJECTS:
+        return SCENE_OBJECTS[name]
+    raise UnknownSampleError(f"unknown sample {name!r}; choose one of: {', '.join([*OBJECTS, *SCENE_OBJECTS])}")
 
 
 def mesh_at(name: str, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

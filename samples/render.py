@@ -25,7 +25,8 @@ from .geometry import Mesh
 LIGHT_DIR = tuple(np.array([0.35, 0.25, 0.90]) / np.linalg.norm([0.35, 0.25, 0.90]))
 AMBIENT = 0.35
 DIFFUSE = 0.65
-#: Clip planes of the GL projection (the objects sit within 0.9 of the origin, cameras well outside).
+#: Clip planes of the GL projection (the objects sit within 0.9 of the origin, cameras well outside). A scene may
+#: pass its own far plane to `MeshRenderer.draw`: everything beyond it is left transparent.
 NEAR, FAR = 0.05, 100.0
 
 
@@ -35,9 +36,10 @@ def shade(albedo: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return np.clip(albedo * (AMBIENT + DIFFUSE * lambert)[:, None], 0.0, 1.0)
 
 
-def view_projection(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """(view, projection) 4x4 row-major matrices for GL: the OpenGL-axes world-to-camera and the projection."""
-    return np.linalg.inv(camera.to_opengl_c2w()), camera.opengl_projection(NEAR, FAR)
+def view_projection(camera: Camera, far: float = FAR) -> tuple[np.ndarray, np.ndarray]:
+    """(view, projection) 4x4 row-major matrices for GL: the OpenGL-axes world-to-camera and the projection
+    (near plane `NEAR`, far plane `far`: camera-space depths, along the viewing axis)."""
+    return np.linalg.inv(camera.to_opengl_c2w()), camera.opengl_projection(NEAR, far)
 
 
 def resolve_straight_alpha(premultiplied: np.ndarray, factor: int) -> np.ndarray:
@@ -113,13 +115,19 @@ class MeshRenderer:
         self._buffers = [vbo, ibo]
 
     @with_context
-    def draw(self, camera: Camera) -> np.ndarray:
-        """``(H, W, 4)`` uint8 straight-alpha RGBA of the uploaded mesh seen by `camera` (rows top first)."""
+    def draw(self, camera: Camera, far: float = FAR) -> np.ndarray:
+        """``(H, W, 4)`` uint8 straight-alpha RGBA of the uploaded mesh seen by `camera` (rows top first).
+
+        `far` is the far clip: surfaces whose camera-space depth (along the viewing axis) exceeds it are clipped
+        by GL, so those pixels stay transparent like the background. The clipped edge is antialiased like any
+        other edge."""
         if self._vao is None:
             raise RuntimeError("MeshRenderer.draw called before upload")
+        if not NEAR < far:
+            raise ValueError(f"far clip must exceed the near plane {NEAR}, got {far}")
         target = self._target(camera.width, camera.height)
         big = camera.resized(camera.width * self.supersample, camera.height * self.supersample)
-        view, proj = view_projection(big)
+        view, proj = view_projection(big, far)
         # moderngl takes column-major matrices: pass the transpose of the row-major arrays.
         self.program["u_view"].write(np.ascontiguousarray(view.T, dtype="f4").tobytes())
         self.program["u_proj"].write(np.ascontiguousarray(proj.T, dtype="f4").tobytes())

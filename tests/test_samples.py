@@ -16,7 +16,7 @@ from splat4d.cameras import Camera, look_at_c2w
 from splat4d.checkpoint import load_checkpoint
 from splat4d.cli import main
 from splat4d.errors import OutputExistsError
-from splat4d.samples import (BOUNDING_RADIUS, SAMPLES, DatasetConfig, MeshRenderer, SampleConfigError,
+from splat4d.samples import (BOUNDING_RADIUS, SAMPLES, SCENES, DatasetConfig, MeshRenderer, SampleConfigError,
                              UnknownSampleError, build_model, get_sample, mesh_at, object_bounds, object_center,
                              write_dataset)
 from splat4d.samples.geometry import (Mesh, axis_angle_matrix, face_areas, points_on_surface, sample_surface,
@@ -341,7 +341,7 @@ def test_cli_help_and_list(capsys):
         assert flag in out
     assert main(["sample", "--list"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert [line.split()[0] for line in lines] == list(SAMPLES)
+    assert [line.split()[0] for line in lines] == list(SAMPLES) + list(SCENES)  # objects, then scenes (floor)
 
 
 def test_cli_errors_are_one_line(capsys, tmp_path):

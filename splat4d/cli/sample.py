@@ -14,12 +14,19 @@ use other azimuths and elevations at times between the training frames. --model 
 checkpoint built from the object's known motion (no training); --trained copies the bundled checkpoint that
 `splat4d train` fitted to the sample's default dataset (samples marked 'trained' in --list).
 
+The scene 'floor' has its own rig instead: moving objects above a white floor to the horizon, 12 fixed cameras
+(11 around it, one straight down from above), ONE camera per time (frame i by camera i mod 12; test images at
+those cameras, times between), and alpha that marks what lies nearer than a far clip, so the top camera's floor
+is transparent while the side cameras' is opaque (on purpose). It takes --frames (default 96, at least 12),
+--size (200), --test-views (12) and --fov (45); --views, --elevation, --radius and --model do not apply to it.
+
 examples:
   splat4d sample --list
   splat4d sample spinner data/spinner
   splat4d sample wave data/wave --views 8 --frames 24 --size 512
   splat4d sample morph --model morph.safetensors
   splat4d sample spinner --trained spinner.safetensors
+  splat4d sample floor data/floor --frames 48
 """
 
 
@@ -28,16 +35,17 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", nargs="?", metavar="OUT", help="dataset folder to write (may be left out with --model)")
     p.add_argument("--list", action="store_true", help="list the samples with a one-line description and exit")
     d = p.add_argument_group("dataset")
-    d.add_argument("--views", type=int, default=16, help="training azimuths per frame, evenly spaced (default 16)")
-    d.add_argument("--frames", type=int, default=16,
-                   help="training times f/(frames-1); also the model's key times (default 16)")
-    d.add_argument("--size", type=int, default=256, help="image width = height in pixels (default 256)")
-    d.add_argument("--elevation", type=float, default=30.0,
+    # Defaults are None so that a scene can tell an option given from one left out (see _scene_config).
+    d.add_argument("--views", type=int, default=None, help="training azimuths per frame, evenly spaced (default 16)")
+    d.add_argument("--frames", type=int, default=None,
+                   help="training times f/(frames-1); also the model's key times (default 16; floor: 96)")
+    d.add_argument("--size", type=int, default=None, help="image width = height in pixels (default 256; floor: 200)")
+    d.add_argument("--elevation", type=float, default=None,
                    help="training elevation, degrees above the horizon (default 30)")
-    d.add_argument("--radius", type=float, default=2.5, help="camera distance from the origin (default 2.5)")
+    d.add_argument("--radius", type=float, default=None, help="camera distance from the origin (default 2.5)")
     d.add_argument("--fov", type=float, default=None,
-                   help="field of view in degrees (default 49.13: fx = 280 px at 256 px, as Efficient4D)")
-    d.add_argument("--test-views", type=int, default=16, help="number of test images (default 16)")
+                   help="field of view in degrees (default 49.13: fx = 280 px at 256 px, as Efficient4D; floor: 45)")
+    d.add_argument("--test-views", type=int, default=None, help="number of test images (default 16; floor: 12)")
     m = p.add_argument_group("model")
     m.add_argument("--model", metavar="MODEL.safetensors",
                    help="also write a 4D Gaussian checkpoint built from the object's motion")
@@ -48,27 +56,57 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
 
+def _given(args: argparse.Namespace, **values) -> dict:
+    """The options among `values` (dest -> value) that were given on the command line (not left at None)."""
+    return {k: v for k, v in values.items() if v is not None}
+
+
+def _object_config(args: argparse.Namespace):
+    from ..samples import DatasetConfig
+
+    return DatasetConfig(**_given(args, views=args.views, frames=args.frames, size=args.size,
+                                  elevation=args.elevation, radius=args.radius, fov=args.fov,
+                                  test_views=args.test_views))
+
+
+def _scene_config(args: argparse.Namespace):
+    """The `FloorConfig` of the options given; the orbit options and --model are refused for a scene."""
+    from ..errors import Splat4DError
+    from ..samples import FloorConfig
+
+    orbit_only = {"--views": args.views, "--elevation": args.elevation, "--radius": args.radius,
+                  "--model": args.model}
+    given = [flag for flag, value in orbit_only.items() if value is not None]
+    if given:
+        raise Splat4DError(f"{', '.join(given)} do{'es' if len(given) == 1 else ''} not apply to sample "
+                           f"{args.name!r}: it has its own fixed rig of 12 cameras (and no Gaussian model); "
+                           "it takes --frames, --size, --test-views and --fov")
+    return FloorConfig(**_given(args, frames=args.frames, size=args.size, test_views=args.test_views,
+                                fov=args.fov))
+
+
 def run(args: argparse.Namespace) -> int:
     import time
 
     from ..errors import Splat4DError
     from ..fileio import check_writable
-    from ..samples import SAMPLES, TRAINED, DatasetConfig, build_model, get_sample, trained_checkpoint, write_dataset
+    from ..samples import SAMPLES, SCENES, TRAINED, build_model, get_sample, trained_checkpoint, write_dataset
 
     if args.list:
-        width = max(len(n) for n in SAMPLES)
-        for name, description in SAMPLES.items():
+        listed = {**SAMPLES, **SCENES}
+        width = max(len(n) for n in listed)
+        for name, description in listed.items():
             print(f"{name:<{width}}  {description}{'  (trained checkpoint bundled)' if name in TRAINED else ''}")
         return 0
     if not args.name:
-        raise Splat4DError(f"give a sample NAME ({', '.join(SAMPLES)}) and an OUT folder, --model and/or --trained")
+        raise Splat4DError(f"give a sample NAME ({', '.join([*SAMPLES, *SCENES])}) and an OUT folder, --model "
+                           "and/or --trained")
     get_sample(args.name)  # unknown name: one line listing the names
     if not args.out and not args.model and not args.trained:
         raise Splat4DError("nothing to write: give an OUT folder, --model MODEL.safetensors and/or --trained CKPT")
+    scene = args.name in SCENES
+    config = _scene_config(args) if scene else _object_config(args)
     bundled = trained_checkpoint(args.name) if args.trained else None  # not bundled: fail before any work
-    config = DatasetConfig(views=args.views, frames=args.frames, size=args.size, elevation=args.elevation,
-                           radius=args.radius, fov=DatasetConfig.fov if args.fov is None else args.fov,
-                           test_views=args.test_views)
     for path in (args.out, args.model, args.trained):  # fail before any work, not after
         if path:
             check_writable(path, args.force)
@@ -76,9 +114,9 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         from ..checkpoint import save_checkpoint
 
-        model = build_model(args.name, num_gaussians=args.gaussians, frames=args.frames, seed=args.seed)
+        model = build_model(args.name, num_gaussians=args.gaussians, frames=config.frames, seed=args.seed)
         save_checkpoint(args.model, model, provenance={"tool": "splat4d sample", "sample": args.name,
-                                                       "frames": args.frames, "seed": args.seed},
+                                                       "frames": config.frames, "seed": args.seed},
                         force=args.force)
         print(f"wrote {args.model}: {len(model):,} Gaussians from sample {args.name!r}")
     if bundled is not None:
@@ -89,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         start = time.perf_counter()
         write_dataset(args.name, args.out, config, force=args.force, progress=True)
-        n = config.views * config.frames
+        n = config.frames if scene else config.views * config.frames
         print(f"wrote {args.out}: {n} training + {config.test_views} test images of sample {args.name!r} "
               f"({config.size}x{config.size}) in {time.perf_counter() - start:.1f} s")
     return 0

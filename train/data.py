@@ -91,8 +91,10 @@ class Dataset:
 
     def summary(self) -> str:
         w, h = self.train[0].size
-        return (f"{self.layout}: {len(self.train)} training images ({self.num_views} views x "
-                f"{len(self.frame_times)} times, {w}x{h}), {len(self.test)} test images")
+        views, times = self.num_views, len(self.frame_times)
+        shape = f"{views} views x {times} times" if views * times == len(self.train) else \
+            f"{views} cameras, {times} times" + (", one camera per time" if times == len(self.train) else "")
+        return f"{self.layout}: {len(self.train)} training images ({shape}, {w}x{h}), {len(self.test)} test images"
 
 
 # --- images --------------------------------------------------------------------------------------------------

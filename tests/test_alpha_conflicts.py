@@ -1,0 +1,103 @@
+"""Alpha that views disagree on: found on the floor sample (the top camera's floor is beyond its far clip),
+not on consistent data, and turned into zero loss weights on the contradicting pixels unless --strict-alpha."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from splat4d.cli import main
+from splat4d.samples import FloorConfig, write_dataset
+from splat4d.samples.dataset import DatasetConfig
+from splat4d.train.alpha_conflicts import describe, find_alpha_conflicts
+from splat4d.train.config import preset
+from splat4d.train.data import load_dataset
+from splat4d.train.trainer import Trainer
+
+TOP = 11  # the floor sample's camera looking straight down
+
+
+@pytest.fixture(scope="module")
+def floor(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data") / "floor"
+    write_dataset("floor", root, FloorConfig(frames=36, size=64, test_views=12))
+    return root
+
+
+@pytest.fixture(scope="module")
+def matrix(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data") / "morph"
+    write_dataset("morph", root, DatasetConfig(views=8, frames=4, size=64, test_views=2))
+    return root
+
+
+def test_floor_sample_disagreement_is_found_on_the_top_camera(floor):
+    ds = load_dataset(floor)
+    found = find_alpha_conflicts(ds)
+    assert found.checked and found.detected
+    assert [c.view_id for c in found.disagreeing] == [TOP]
+    top = next(c for c in found.cameras if c.view_id == TOP)
+    assert top.share > 0.5  # most of its image is floor the side cameras see opaque
+    assert all(c.share < 0.01 for c in found.cameras if c.view_id != TOP)
+    assert found.surface_rgb is not None and min(found.surface_rgb) > 0.8  # the others see a white floor
+    line = describe(found, strict=False, views=ds.train)
+    assert "alpha disagrees" in line and "r_011.png" in line and "--strict-alpha" in line
+    # the weights: 0 on the top camera's transparent floor, 1 on its objects and on every side camera
+    for v in ds.train:
+        w = found.weight(v)
+        if v.view_id != TOP:
+            assert w is None
+            continue
+        transparent = v.alpha < 128
+        assert (w[~transparent] == 1).all()
+        assert (w[transparent] == 0).mean() > 0.8
+
+
+def test_consistent_data_agrees_and_breaking_one_camera_is_found(matrix):
+    ds = load_dataset(matrix)
+    found = find_alpha_conflicts(ds)
+    assert found.checked and not found.detected and found.worst_share < 0.005
+    assert "alpha agrees between views" in describe(found, False, ds.train)
+    # one camera's alpha emptied at every time: the object's static core now crosses its empty pixels
+    broken = dataclasses.replace(ds, train=[dataclasses.replace(v, alpha=np.zeros_like(v.alpha))
+                                            if v.view_id == 3 else v for v in ds.train])
+    found = find_alpha_conflicts(broken)
+    assert [c.view_id for c in found.disagreeing] == [3]
+
+
+def test_not_checked_without_repeated_cameras(matrix):
+    ds = load_dataset(matrix)
+    once = dataclasses.replace(ds, train=[v for v in ds.train if v.frame_id == 0])  # each camera at one time
+    found = find_alpha_conflicts(once)
+    assert not found.checked and "not checked" in describe(found, False, once.train)
+
+
+def test_trainer_zeroes_the_loss_on_conflicts_unless_strict(floor, tmp_path):
+    ds = load_dataset(floor)
+    cfg = dataclasses.replace(preset("efficient4d").scaled(2), num_gaussians=200, confidence=False)
+    top = next(i for i, v in enumerate(ds.train) if v.view_id == TOP)
+    tr = Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False)
+    w_rgb, w_ssim, w_alpha = tr._loss_weights(top, 1)
+    assert w_alpha is not None and float(w_alpha.min()) == 0.0 and w_rgb is w_alpha
+    half = tr._loss_weights(top, 2)[2]  # the coarse-to-fine ramp gets the weights at its resolution
+    assert half.shape == (32, 32)
+    side = next(i for i, v in enumerate(ds.train) if v.view_id != TOP)
+    assert tr._loss_weights(side, 1) == (None, None, None)
+    strict = Trainer(ds, dataclasses.replace(cfg, strict_alpha=True), tmp_path / "b.safetensors", progress=False)
+    assert strict._loss_weights(top, 1) == (None, None, None)
+
+
+def test_cli_reports_it_and_records_it(floor, tmp_path, capsys):
+    out = tmp_path / "m.safetensors"
+    args = ["train", str(floor), "--out", str(out), "--iters", "2", "--num-gaussians", "200", "--quiet"]
+    assert main(args) == 0
+    said = capsys.readouterr().out
+    assert "one camera per time" in said and "alpha disagrees between views" in said
+    assert "those pixels get no loss" in said
+    from splat4d.checkpoint import load_checkpoint
+
+    training = load_checkpoint(out).training
+    assert training["alpha_ignored"] is True and training["alpha_disagreement"] > 0.5
+    assert main(args + ["--force", "--strict-alpha"]) == 0
+    assert "--strict-alpha: training on the alpha as given" in capsys.readouterr().out
+    assert load_checkpoint(out).training["alpha_ignored"] is False

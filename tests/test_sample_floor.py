@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from splat4d.cli import main
-from splat4d.samples import (SAMPLES, SCENES, DatasetConfig, FloorConfig, MeshRenderer, SampleConfigError,
+from splat4d.samples import (SAMPLES, SCENES, DatasetConfig, FloorConfig, SampleConfigError,
                              build_model, get_sample, write_dataset)
 from splat4d.samples import floor
 from splat4d.samples.floor import (FAR_CLIP, NUM_CAMERAS, SIDE_DISTANCE, TOP_CAMERA, TOP_HEIGHT, FloorScene,
                                    concat_meshes, rig_cameras)
 from splat4d.train.data import load_dataset
+from test_samples import read_rgba
 
 SMALL = FloorConfig(frames=36, size=64, test_views=12)
 SCENE = FloorScene()
@@ -25,19 +26,8 @@ NEAR_FLOOR = np.array([(x, y, SCENE.floor_z) for x in np.linspace(-1.0, 1.0, 9) 
 
 
 @pytest.fixture(scope="module")
-def renderer():
-    r = MeshRenderer()
-    yield r
-    r.release()
-
-
-@pytest.fixture(scope="module")
 def dataset(tmp_path_factory, renderer) -> Path:
     return write_dataset("floor", tmp_path_factory.mktemp("floor") / "floor", SMALL, renderer=renderer)
-
-
-def read_rgba(path: Path) -> np.ndarray:
-    return cv2.cvtColor(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
 
 
 def objects_mask(renderer, camera, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,7 @@ from splat4d.cameras import Camera, look_at_c2w
 from splat4d.checkpoint import load_checkpoint
 from splat4d.cli import main
 from splat4d.errors import OutputExistsError
-from splat4d.samples import (BOUNDING_RADIUS, SAMPLES, SCENES, DatasetConfig, MeshRenderer, SampleConfigError,
+from splat4d.samples import (BOUNDING_RADIUS, SAMPLES, SCENES, DatasetConfig, SampleConfigError,
                              UnknownSampleError, build_model, get_sample, mesh_at, object_bounds, object_center,
                              write_dataset)
 from splat4d.samples.geometry import (Mesh, axis_angle_matrix, face_areas, points_on_surface, sample_surface,
@@ -25,13 +25,6 @@ from splat4d.samples.render import LIGHT_DIR, resolve_straight_alpha
 
 SMALL = DatasetConfig(views=4, frames=3, size=64, test_views=4)
 TIMES = np.linspace(0.0, 1.0, 11)
-
-
-@pytest.fixture(scope="module")
-def renderer():
-    r = MeshRenderer()
-    yield r
-    r.release()
 
 
 @pytest.fixture(scope="module")

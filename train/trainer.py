@@ -169,14 +169,19 @@ class Trainer:
         self._loaded_state = st
 
     def _confidence(self) -> dict[int, tuple[torch.Tensor, torch.Tensor]]:
-        """Confidence maps for every training image whose view has a video of >= 3 frames."""
+        """Confidence maps for every training image whose view has a video of >= 3 frames at consecutive dataset
+        times. A camera that sees only every k-th time (one camera per time, cameras taking turns) has no video:
+        interpolating its frames k steps apart fails on everything that moves, and would down-weight exactly the
+        moving objects."""
         by_view: dict[int, list[int]] = {}
         for i, v in enumerate(self.ds.train):
             by_view.setdefault(v.view_id, []).append(i)
+        rank = {t: k for k, t in enumerate(self.ds.frame_times)}
         out = {}
         for idx in by_view.values():
             idx = sorted(idx, key=lambda i: self.ds.train[i].time)
-            if len(idx) < 3:
+            ranks = [rank[self.ds.train[i].time] for i in idx]
+            if len(idx) < 3 or ranks != list(range(ranks[0], ranks[0] + len(ranks))):
                 continue
             frames = [(view_target(self.ds.train[i], self.ds.background)[0].numpy() * 255 + 0.5).astype(np.uint8)
                       for i in idx]

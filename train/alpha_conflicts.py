@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import Dataset, View
+from .data import Dataset, View, relative_name
 
 #: Longer image side the masks are reduced to for the test.
 WORK_SIZE = 128
@@ -208,7 +208,8 @@ def find_alpha_conflicts(ds: Dataset, centre: np.ndarray | None = None, seed: in
         contradicted = (n_seen >= MIN_WITNESSES) & (n_solid >= SOLID_SHARE * n_seen)
         per_ray = contradicted.reshape(len(pixels), -1)
         bad = per_ray.any(1)
-        found = CameraConflict(cam.view.view_id, cam.view.name, len(pixels), int(bad.sum()), len(xs) / marks_size)
+        name = relative_name(cam.view.name, ds.root)
+        found = CameraConflict(cam.view.view_id, name, len(pixels), int(bad.sum()), len(xs) / marks_size)
         result.cameras.append(found)
         if found.share < DETECT_SHARE:
             continue
@@ -233,8 +234,8 @@ def describe(found: AlphaConflicts, strict: bool, views: list[View]) -> str:
     if not found.checked:
         return f"alpha agreement not checked: {found.note}"
     if not found.detected:
-        return (f"alpha agrees between views ({len(found.cameras)} cameras; at most {100 * found.worst_share:.1f}% of a "
-                f"camera's image is transparent where the others see a surface)")
+        return (f"alpha agrees between views ({len(found.cameras)} cameras; at most "
+                f"{100 * found.worst_share:.1f}% of a camera's image is transparent where the others see a surface)")
     bad = sorted(found.disagreeing, key=lambda c: -c.share)
     colour = "" if found.surface_rgb is None else \
         " of colour " + " ".join(f"{x:.2f}" for x in found.surface_rgb)

@@ -141,6 +141,16 @@ def downscale_view(view: View, factor: int) -> View:
     return replace(view, image=image, alpha=alpha, camera=view.camera.resized(nw, nh))
 
 
+def relative_name(name: str, root: Path) -> str:
+    """A view's name (its image path, maybe with a frame or view suffix) relative to the dataset folder, as
+    checkpoints record it and messages show it: shorter, and no user's absolute paths in a file that may be
+    shared."""
+    try:
+        return str(Path(name).relative_to(root))
+    except ValueError:  # not under the dataset folder
+        return name
+
+
 def _numeric_files(folder: Path, suffixes=(".png", ".jpg", ".jpeg", ".exr")) -> dict[int, Path]:
     """``{index: path}`` for files named by an integer (any zero padding)."""
     out = {}

@@ -26,7 +26,7 @@ from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import TrainConfig
 from .confidence import confidence_maps
-from .data import Dataset, View, downscale_view
+from .data import Dataset, View, downscale_view, relative_name
 from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, knn, initial_parameters, look_at_centre, mesh_points,
                          random_ball)
@@ -307,7 +307,7 @@ class Trainer:
                     "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha)}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
                         provenance={"tool": "splat4d train", "preset": self.cfg.preset}, training=training,
-                        views=[DatasetView(_relative_name(v.name, self.ds.root), v.camera, v.time)
+                        views=[DatasetView(relative_name(v.name, self.ds.root), v.camera, v.time)
                                for v in self.ds.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()}}
@@ -347,12 +347,3 @@ class Trainer:
             return None
         return evaluate(self.model().detach(), self.ds.test, self.ds.background, self.device,
                         progress=self.progress)
-
-
-def _relative_name(name: str, root) -> str:
-    """A view's name (its image path, maybe with a frame or view suffix) relative to the dataset folder, as the
-    checkpoint records it: shorter, and no user's absolute paths in a file that may be shared."""
-    try:
-        return str(Path(name).relative_to(root))
-    except ValueError:  # not under the dataset folder
-        return name

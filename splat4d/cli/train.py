@@ -70,7 +70,8 @@ def config_from_args(args: argparse.Namespace, resumed: dict | None = None):
         cfg = cfg.scaled(args.iters)
     elif args.iters:
         cfg = dataclasses.replace(cfg, iters=args.iters)
-    over = {"seed": args.seed if not resumed else cfg.seed, "strict_alpha": args.strict_alpha or None, "num_gaussians": args.num_gaussians,
+    over = {"seed": args.seed if not resumed else cfg.seed, "strict_alpha": args.strict_alpha or None,
+            "num_gaussians": args.num_gaussians,
             "init_mesh": args.init_mesh, "sh_degree": args.sh_degree, "sh_degree_t": args.sh_degree_t,
             "static_iters": args.static_iters, "resolution_ramp": args.resolution_ramp,
             "smooth_weight": args.smooth_weight, "batch_size": args.batch_size,
@@ -106,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
         meta = read_metadata(args.out)
         resumed = meta.get("training") or None
         if resumed:
-            resumed = {k: v for k, v in resumed.items() if k not in ("iteration", "dataset", "layout", "background_reason",
-                                                           "alpha_disagreement", "alpha_ignored")}
+            run_facts = ("iteration", "dataset", "layout", "background_reason", "alpha_disagreement", "alpha_ignored")
+            resumed = {k: v for k, v in resumed.items() if k not in run_facts}
         recorded_bg = meta.get("background")
     cfg = config_from_args(args, resumed)
     ds = load_dataset(args.data, layout=args.layout, downscale=args.downscale, background=args.background)

@@ -10,6 +10,8 @@ clamped: an object holds its first and last state.
 * ``wave``: a soft striped tube swimming like an eel: a travelling sine wave runs along its body.
 * ``morph``: a beach-ball blob that squashes and stretches, grows three lobes and shifts its hue from red
   to blue.
+* ``texture``: a thick banner covered in fine, high-contrast texture (bars 2 to 6 px wide, a checker band and text,
+  as per-vertex colours on a dense mesh) that ripples, bows and twists (`splat4d.samples.texture`).
 """
 
 from __future__ import annotations
@@ -234,8 +236,11 @@ class Morph(SampleObject):
 
 # --- registry ----------------------------------------------------------------------------------------------------
 
+# The texture sample builds on SampleObject, defined above, and is too long to live here: import it only now.
+from .texture import Texture  # noqa: E402
+
 #: Name -> object with default parameters.
-OBJECTS: dict[str, SampleObject] = {o.name: o for o in (Spinner(), Wave(), Morph())}
+OBJECTS: dict[str, SampleObject] = {o.name: o for o in (Spinner(), Wave(), Morph(), Texture())}
 #: Name -> one-line description (what ``splat4d sample --list`` prints).
 SAMPLES: dict[str, str] = {name: type(o).description for name, o in OBJECTS.items()}
 

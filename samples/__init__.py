@@ -4,7 +4,8 @@ native 4D Gaussian models.
 Objects (`SAMPLES`: name -> description) are triangle meshes with per-vertex colours and a fixed topology over
 scene time t in [0, 1], inside a ball of radius 0.9 (Blender world, +z up). Scenes (`SCENES`) bring their own
 camera rig and config type: ``floor`` (`FloorConfig`) puts moving objects above a floor to the horizon, seen by 12
-fixed cameras one per time, with alpha marking what lies nearer than a far clip (`splat4d.samples.floor`):
+fixed cameras one per time, with alpha marking what lies nearer than a far clip (`splat4d.samples.floor`); its
+model is built too: the objects from their motion plus a static floor where the rig sees it nearer than the clip.
 
 >>> from splat4d.samples import SAMPLES, mesh_at, object_bounds, write_dataset, build_model
 >>> vertices, faces, colors = mesh_at("spinner", 0.5)       # (V, 3), (F, 3), (V, 3) albedo
@@ -12,6 +13,7 @@ fixed cameras one per time, with alpha marking what lies nearer than a far clip 
 >>> write_dataset("morph", "data/morph")                     # 16 views x 16 frames at 256 px + 16 test images
 >>> write_dataset("floor", "data/floor", FloorConfig(frames=48))  # 48 frames, one camera each, + 12 test images
 >>> model = build_model("spinner", num_gaussians=20000)      # Gaussians4D following the known motion
+>>> exact = build_model("floor", config=FloorConfig(frames=48))  # the scene's exact model for that dataset
 >>> path = trained_checkpoint("spinner")                      # bundled checkpoint trained on the spinner dataset
 """
 

@@ -30,6 +30,7 @@ The Gaussians are stored segment by segment (segment-major), so the model has ex
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 import torch
@@ -38,7 +39,7 @@ from splat4d import sh
 from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4d
 from splat4d.model import Gaussians4D
 
-from .geometry import face_areas, farthest_point_subset, points_on_surface, sample_surface
+from .geometry import Mesh, face_areas, farthest_point_subset, points_on_surface, sample_surface
 from .objects import OBJECTS, SampleConfigError, get_sample
 from .render import shade
 
@@ -51,6 +52,9 @@ TEMPORAL_STD = 0.5
 OPACITY = 0.95
 #: Random surface candidates per point kept by farthest-point sampling.
 CANDIDATES_PER_POINT = 6
+#: Gaussians and key times of an object's model unless told (`build_model`).
+DEFAULT_GAUSSIANS = 20000
+DEFAULT_FRAMES = 16
 
 
 def segment_times(frames: int) -> np.ndarray:
@@ -67,33 +71,46 @@ def disc_covariances(normals: np.ndarray, std: np.ndarray) -> np.ndarray:
     return var * (np.eye(3) - nn) + (DISC_THICKNESS ** 2) * var * nn
 
 
-def build_model(name: str, num_gaussians: int = 20000, frames: int = 16, seed: int = 0) -> Gaussians4D:
+def build_model(name: str, num_gaussians: int | None = None, frames: int | None = None, seed: int = 0,
+                config=None) -> Gaussians4D:
     """A `Gaussians4D` (float32, SH degree 0, 'current' convention, time_range (0, 1)) reproducing sample `name`.
 
     Args:
-        name: a key of `SAMPLES`.
-        num_gaussians: number of Gaussians in the model (points x segments; see module doc).
-        frames: key times ``k / (frames - 1)`` (>= 2); more keys follow curved motion more closely.
+        name: a key of `SAMPLES`, or of `SCENES` (a scene builds its own model: ``floor`` adds a static floor to
+            its objects, see `splat4d.samples.floor`).
+        num_gaussians: number of Gaussians in the model (points x segments; see module doc); None: the sample's
+            default (`DEFAULT_GAUSSIANS` for an object).
+        frames: key times ``k / (frames - 1)`` (>= 2); more keys follow curved motion more closely. None: 16 for
+            an object, the dataset's frames for a scene.
         seed: random seed of the surface sampling (same seed, same model).
+        config: a scene's dataset config (its camera rig decides which floor is seen); unused by objects.
     """
-    if frames < 2:
+    if frames is not None and frames < 2:
         raise SampleConfigError(f"frames must be >= 2 to build a model, got {frames}")
-    if num_gaussians < 1:
+    if num_gaussians is not None and num_gaussians < 1:
         raise SampleConfigError(f"num_gaussians must be >= 1, got {num_gaussians}")
     obj = get_sample(name)
-    if name not in OBJECTS:
-        raise SampleConfigError(f"a Gaussian model cannot be built for sample {name!r}: it is a scene whose floor "
-                                "runs to the horizon, not a bounded object; train one on its dataset instead")
+    if name not in OBJECTS:  # a scene: its own parts and rig (as write_dataset hands scenes their own writer)
+        return obj.build_model(num_gaussians, frames, seed, config)
+    return motion_model(obj.mesh, DEFAULT_GAUSSIANS if num_gaussians is None else num_gaussians,
+                        DEFAULT_FRAMES if frames is None else frames, seed)
+
+
+def motion_model(mesh_at: Callable[[float], Mesh], num_gaussians: int, frames: int, seed: int,
+                 disc_size: float = DISC_SIZE, opacity: float = OPACITY) -> Gaussians4D:
+    """The model of the module doc for the animated mesh ``mesh_at(t)`` (fixed topology; held outside [0, 1]):
+    exactly `num_gaussians` (>= 1) Gaussians over ``frames`` (>= 2) key times, surface sampling seeded by `seed`.
+    `disc_size` and `opacity` replace `DISC_SIZE` and `OPACITY` (the floor scene uses smaller ones)."""
     keys = segment_times(frames)
     num_segments = len(keys) - 1
     step = 1.0 / (frames - 1)
-    meshes = [obj.mesh(t) for t in keys]  # the ends are held: mesh() clamps t to [0, 1]
+    meshes = [mesh_at(t) for t in keys]  # the ends are held: mesh() clamps t to [0, 1]
     faces = meshes[0].faces
     mean_areas = np.mean([face_areas(m.vertices, faces) for m in meshes[1:-1]], axis=0)  # (F,)
     num_points = math.ceil(num_gaussians / num_segments)
     rng = np.random.default_rng(seed)
     face_ids, bary = sample_surface(mean_areas, CANDIDATES_PER_POINT * num_points, rng)
-    middle = points_on_surface(obj.mesh(0.5), face_ids, bary)[0]
+    middle = points_on_surface(mesh_at(0.5), face_ids, bary)[0]
     keep = farthest_point_subset(middle, num_points, rng)
     face_ids, bary = face_ids[keep], bary[keep]
     positions = np.stack([points_on_surface(m, face_ids, bary)[0] for m in meshes])  # (K, P, 3)
@@ -102,12 +119,12 @@ def build_model(name: str, num_gaussians: int = 20000, frames: int = 16, seed: i
     mids = 0.5 * (keys[:-1] + keys[1:])  # (S,)
     normals, colors, stds = [], [], []
     for t in mids:
-        mesh = obj.mesh(t)
+        mesh = mesh_at(t)
         _, n, albedo = points_on_surface(mesh, face_ids, bary)
         stretch = face_areas(mesh.vertices, faces)[face_ids] / mean_areas[face_ids]
         normals.append(n)
         colors.append(shade(albedo, n))
-        stds.append(DISC_SIZE * spacing * np.sqrt(stretch))
+        stds.append(disc_size * spacing * np.sqrt(stretch))
     normals, colors, stds = np.stack(normals), np.stack(colors), np.stack(stds)  # (S, P, 3), (S, P, 3), (S, P)
 
     def flat(a: np.ndarray) -> np.ndarray:  # (S, P, ...) -> (N, ...), segment-major, first N
@@ -127,6 +144,6 @@ def build_model(name: str, num_gaussians: int = 20000, frames: int = 16, seed: i
         means=torch.tensor(means, **f32), t_means=torch.tensor(t_means, **f32),
         log_scales=torch.log(scales.clamp_min(1e-12)).float(), log_t_scales=torch.log(t_scales).float(),
         quats_l=q_l.float(), quats_r=q_r.float(),
-        opacity_logits=torch.full((n,), math.log(OPACITY / (1.0 - OPACITY)), **f32),
+        opacity_logits=torch.full((n,), math.log(opacity / (1.0 - opacity)), **f32),
         sh_dc=torch.tensor(sh.rgb_to_sh(flat(colors)), **f32)[:, None, :], sh_rest=torch.zeros((n, 0, 3), **f32),
         sh_degree=0, sh_degree_t=0, time_range=(0.0, 1.0), rotation_convention="current")

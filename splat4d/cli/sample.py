@@ -18,7 +18,11 @@ The scene 'floor' has its own rig instead: moving objects above a white floor to
 (11 around it, one straight down from above), ONE camera per time (frame i by camera i mod 12; test images at
 those cameras, times between), and alpha that marks what lies nearer than a far clip, so the top camera's floor
 is transparent while the side cameras' is opaque (on purpose). It takes --frames (default 96, at least 12),
---size (200), --test-views (12) and --fov (45); --views, --elevation, --radius and --model do not apply to it.
+--size (200), --test-views (12) and --fov (45); --views, --elevation and --radius do not apply to it. Its
+--model is the scene's exact model (by default 5 Gaussians per pixel of --size; white background): the objects
+from their known motion, the floor as static Gaussians where most cameras see it nearer than the far clip.
+`splat4d eval` of it on the dataset gives the upper bound a trained model is compared with (pass the dataset's
+--frames, --size and --fov).
 
 examples:
   splat4d sample --list
@@ -27,6 +31,7 @@ examples:
   splat4d sample morph --model morph.safetensors
   splat4d sample spinner --trained spinner.safetensors
   splat4d sample floor data/floor --frames 48
+  splat4d sample floor data/floor --frames 48 --model floor.safetensors
 """
 
 
@@ -48,10 +53,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     d.add_argument("--test-views", type=int, default=None, help="number of test images (default 16; floor: 12)")
     m = p.add_argument_group("model")
     m.add_argument("--model", metavar="MODEL.safetensors",
-                   help="also write a 4D Gaussian checkpoint built from the object's motion")
+                   help="also write a 4D Gaussian checkpoint built from the sample's known motion")
     m.add_argument("--trained", metavar="CKPT.safetensors",
                    help="also copy the bundled trained checkpoint of the sample here")
-    m.add_argument("--gaussians", type=int, default=20000, help="Gaussians in the model (default 20000)")
+    m.add_argument("--gaussians", type=int, default=None,
+                   help="Gaussians in the model (default 20000; floor: 5 per pixel, 200000 at 200 px)")
     m.add_argument("--seed", type=int, default=0, help="surface sampling seed of the model (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
@@ -70,16 +76,15 @@ def _object_config(args: argparse.Namespace):
 
 
 def _scene_config(args: argparse.Namespace):
-    """The `FloorConfig` of the options given; the orbit options and --model are refused for a scene."""
+    """The `FloorConfig` of the options given; the orbit options are refused for a scene."""
     from ..errors import Splat4DError
     from ..samples import FloorConfig
 
-    orbit_only = {"--views": args.views, "--elevation": args.elevation, "--radius": args.radius,
-                  "--model": args.model}
+    orbit_only = {"--views": args.views, "--elevation": args.elevation, "--radius": args.radius}
     given = [flag for flag, value in orbit_only.items() if value is not None]
     if given:
         raise Splat4DError(f"{', '.join(given)} do{'es' if len(given) == 1 else ''} not apply to sample "
-                           f"{args.name!r}: it has its own fixed rig of 12 cameras (and no Gaussian model); "
+                           f"{args.name!r}: it has its own fixed rig of 12 cameras; "
                            "it takes --frames, --size, --test-views and --fov")
     return FloorConfig(**_given(args, frames=args.frames, size=args.size, test_views=args.test_views,
                                 fov=args.fov))
@@ -114,10 +119,14 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         from ..checkpoint import save_checkpoint
 
-        model = build_model(args.name, num_gaussians=args.gaussians, frames=config.frames, seed=args.seed)
-        save_checkpoint(args.model, model, provenance={"tool": "splat4d sample", "sample": args.name,
-                                                       "frames": config.frames, "seed": args.seed},
-                        force=args.force)
+        model = build_model(args.name, num_gaussians=args.gaussians, frames=config.frames, seed=args.seed,
+                            config=config)
+        # A scene's dataset is composited on white by the D-NeRF convention (train.data), so its model is scored
+        # and drawn on white; the object models keep the black they always had.
+        background = (1.0, 1.0, 1.0) if scene else (0.0, 0.0, 0.0)
+        save_checkpoint(args.model, model, background=background,
+                        provenance={"tool": "splat4d sample", "sample": args.name, "frames": config.frames,
+                                    "seed": args.seed}, force=args.force)
         print(f"wrote {args.model}: {len(model):,} Gaussians from sample {args.name!r}")
     if bundled is not None:
         from ..fileio import atomic_write_bytes

@@ -45,6 +45,10 @@ class DensifyConfig:
     opacity_reset_every: int = 3000
     #: Never grow past this many Gaussians (keeps CPU runs bounded).
     max_gaussians: int = 1_000_000
+    #: Budgeted growth (Taming 3DGS's budget curve): the allowed count rises linearly from the initial count at
+    #: `start` to `max_gaussians` at `stop`, and each step grows the highest-gradient candidates up to it. Off:
+    #: the official rule (every candidate above the threshold, as long as the cap allows).
+    budget_curve: bool = False
 
 
 @dataclass
@@ -66,6 +70,12 @@ class TrainConfig:
     #: Keep only random init points inside the visual hull of the training masks at their own time (space
     #: carving), so that the Gaussians start where the object is in space-time instead of filling the ball.
     init_carve: bool = True
+    #: Where the initial Gaussians go: 'ball' (random in a ball every camera sees, Efficient4D), 'frustum' (the
+    #: volume the training cameras see: rays through opaque pixels, for floors and backdrops that leave the ball)
+    #: or 'points' (the point cloud file `init_points`, e.g. a dataset's fused.ply). Both random kinds are carved
+    #: by the alpha masks when `init_carve`.
+    init: str = "ball"
+    init_points: str | None = None
     #: Mesh file (anything trimesh reads) to sample coloured surface points from, instead of a random ball.
     init_mesh: str | None = None
     #: Initial temporal std-dev in frame intervals of the training video; None: the official sqrt(D / 5) in the
@@ -105,6 +115,14 @@ class TrainConfig:
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
     densify: DensifyConfig = field(default_factory=DensifyConfig)
+    #: Time budget in minutes (None: run `iters` steps). With a budget the run ends on time and every schedule
+    #: (learning-rate decay, resolution ramp, densification window, SH ramp) follows the elapsed share of the
+    #: budget: step k of the `iters`-step recipe happens at k / iters of the time.
+    minutes: float | None = None
+    #: Penalty on spatial scale ratios above `max_scale_ratio` (PhysGaussian's anisotropy regulariser as in
+    #: nerfstudio's splatfacto: mean(max(s_max / s_min, r) - r)); 0: off. Fights needles that fit one view.
+    lambda_scale_ratio: float = 0.0
+    max_scale_ratio: float = 10.0
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.
@@ -147,6 +165,8 @@ def _full() -> TrainConfig:
 
 
 PRESETS = {
+    "auto": ("reads the data and decides (printed); densification under a cap, a time budget (--minutes)",
+             None),
     "efficient4d": ("Efficient4D: 50k random Gaussians, no densification, 500 iterations, confidence-weighted "
                     "L1 + SSIM", _efficient4d),
     "full": ("official 4DGS schedule: densification, opacity reset, SH ramp to (3, 2), 30000 iterations",
@@ -159,4 +179,6 @@ def preset(name: str) -> TrainConfig:
 
     if name not in PRESETS:
         raise Splat4DError(f"unknown preset {name!r} (expected one of {', '.join(PRESETS)})")
+    if PRESETS[name][1] is None:
+        raise Splat4DError(f"preset {name!r} reads the dataset: use splat4d.train.recipe.auto_recipe")
     return PRESETS[name][1]()

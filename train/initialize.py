@@ -145,11 +145,23 @@ def carved_init(n: int, radius: float, centre: np.ndarray, ds: Dataset, generato
     if all(v.alpha is None for v in ds.train):
         return None
     t0, t1 = ds.frame_times[0], ds.frame_times[-1]
+
+    def draw() -> tuple[torch.Tensor, torch.Tensor]:
+        cand = random_ball(4 * n, radius, centre, generator)
+        return cand, t0 + (t1 - t0) * torch.rand(4 * n, generator=generator, dtype=torch.float64)
+    return _keep_carved(n, draw, ds, generator, max_rounds)
+
+
+def _keep_carved(n: int, draw, ds: Dataset, generator: torch.Generator, max_rounds: int
+                 ) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Draw candidate batches (``draw() -> (points, times)``) until `n` pass `carve` (all pass without masks);
+    None when none does. A thin hull with fewer survivors reuses them (their scales come out small, which suits
+    thin shapes)."""
+    masked = any(v.alpha is not None for v in ds.train)
     kept_p, kept_t, total = [], [], 0
     for _ in range(max_rounds):
-        cand = random_ball(4 * n, radius, centre, generator)
-        times = t0 + (t1 - t0) * torch.rand(4 * n, generator=generator, dtype=torch.float64)
-        ok = carve(cand, times, ds)
+        cand, times = draw()
+        ok = carve(cand, times, ds) if masked else torch.ones(len(cand), dtype=torch.bool)
         kept_p.append(cand[ok])
         kept_t.append(times[ok].float())
         total += int(ok.sum())
@@ -158,7 +170,57 @@ def carved_init(n: int, radius: float, centre: np.ndarray, ds: Dataset, generato
     if total == 0:
         return None
     p, t = torch.cat(kept_p), torch.cat(kept_t)
-    if total < n:  # a thin hull: reuse candidates (their scales come out small, which suits thin shapes)
+    if total < n:
         idx = torch.randint(total, (n,), generator=generator)
         return p[idx], t[idx]
     return p[:n], t[:n]
+
+
+def frustum_candidates(n: int, ds: Dataset, centre: np.ndarray, generator: torch.Generator,
+                       depth_range: tuple[float, float] = (0.2, 2.5)) -> tuple[torch.Tensor, torch.Tensor]:
+    """``n`` space-time candidates spread over what the training cameras see: a random training image, a random
+    pixel of it that is opaque (any pixel without alpha), a depth uniform in `depth_range` times that camera's
+    distance to `centre`, at the image's time. Unlike a ball around the look-at point this also reaches a floor or
+    backdrop that runs out of the ball."""
+    rng = np.random.default_rng(int(torch.randint(2**31 - 1, (1,), generator=generator)))
+    per_view = np.bincount(rng.integers(len(ds.train), size=n), minlength=len(ds.train))
+    points, times = [], []
+    for v, k in zip(ds.train, per_view):
+        if k == 0:
+            continue
+        w, h = v.size
+        fg = np.flatnonzero(v.alpha >= 128) if v.alpha is not None else np.arange(w * h)
+        if fg.size == 0:
+            continue
+        pix = fg[rng.integers(fg.size, size=k)]
+        uv = np.stack([pix % w, pix // w], -1) + rng.random((k, 2))
+        dist = float(np.linalg.norm(v.camera.position - centre))
+        depth = dist * rng.uniform(*depth_range, size=k)
+        points.append(v.camera.unproject(uv, depth))
+        times.append(np.full(k, v.time))
+    return torch.from_numpy(np.concatenate(points)).float(), torch.from_numpy(np.concatenate(times))
+
+
+def frustum_init(n: int, ds: Dataset, centre: np.ndarray, generator: torch.Generator,
+                 max_rounds: int = 20) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """``n`` points and times from `frustum_candidates`, kept where the masks agree (`carve`): the volume the
+    cameras see, carved by the alpha masks. None when nothing survives."""
+    return _keep_carved(n, lambda: frustum_candidates(2 * n, ds, centre, generator), ds, generator, max_rounds)
+
+
+def point_cloud_init(path, n: int, ds: Dataset, generator: torch.Generator
+                     ) -> tuple[torch.Tensor, torch.Tensor | None, str]:
+    """(points, RGB or None, note) from a dataset's point cloud (`splat4d.train.points`): at most `n` of its points
+    (a random subset when it has more), dropped when fewer than half lie in any training view (another frame)."""
+    from .points import in_view_share, read_point_cloud
+
+    xyz, rgb = read_point_cloud(path)
+    share = in_view_share(xyz, {v.view_id: v.camera for v in ds.train}.values())
+    if share < 0.5:
+        raise Splat4DError(f"{path}: only {100 * share:.0f}% of its points lie in view of the training cameras "
+                           "(another coordinate frame?); use --init ball or frustum")
+    if len(xyz) > n:
+        idx = torch.randperm(len(xyz), generator=generator)[:n].numpy()
+        xyz, rgb = xyz[idx], None if rgb is None else rgb[idx]
+    note = f"{len(xyz):,} points of {path.name}"
+    return torch.from_numpy(xyz).float(), None if rgb is None else torch.from_numpy(rgb).float(), note

@@ -65,23 +65,28 @@ def initialize_state(n: int, device) -> dict[str, Tensor]:
             "max_radii": torch.zeros(n, device=device)}
 
 
-def accumulate(state: dict[str, Tensor], means2d_grad: Tensor, radii: Tensor, width: int, height: int) -> None:
+def accumulate(state: dict[str, Tensor], means2d_grad: Tensor, radii: Tensor, width: int, height: int,
+               index: Tensor | None = None) -> None:
     """After backward: add the norm of each visible Gaussian's screen-space mean gradient (in NDC units, as the
-    reference: pixel gradients times half the image size) and track the largest screen radius."""
+    reference: pixel gradients times half the image size) and track the largest screen radius. `index` ``[M]``
+    maps the rendered Gaussians to the model's when only some were rendered (default: all, in order)."""
     vis = radii > 0
-    g = means2d_grad.detach() * torch.tensor([0.5 * width, 0.5 * height], device=means2d_grad.device)
-    state["grad_accum"][vis] += torch.linalg.vector_norm(g[vis], dim=-1)
-    state["count"][vis] += 1
-    state["max_radii"][vis] = torch.maximum(state["max_radii"][vis], radii[vis].to(state["max_radii"].dtype))
+    rows = vis.nonzero()[:, 0] if index is None else index[vis]
+    g = means2d_grad.detach()[vis] * torch.tensor([0.5 * width, 0.5 * height], device=means2d_grad.device)
+    state["grad_accum"][rows] += torch.linalg.vector_norm(g, dim=-1)
+    state["count"][rows] += 1
+    state["max_radii"][rows] = torch.maximum(state["max_radii"][rows], radii[vis].to(state["max_radii"].dtype))
 
 
 def densify_and_prune(params: Params, optimizer, state: dict[str, Tensor], cfg: DensifyConfig, extent: float,
-                      step: int, convention: str, generator: torch.Generator) -> dict[str, int]:
-    """One densification step: clone small / split large high-gradient Gaussians, then prune. Returns counts."""
+                      step: int, convention: str, generator: torch.Generator, room: int | None = None
+                      ) -> dict[str, int]:
+    """One densification step: clone small / split large high-gradient Gaussians (at most `room` new ones,
+    default: up to the cap, highest gradients first), then prune. Returns counts."""
     grads = state["grad_accum"] / state["count"].clamp_min(1)
     high = grads >= cfg.grad_threshold
     n = params["means"].shape[0]
-    room = max(0, cfg.max_gaussians - n)
+    room = max(0, cfg.max_gaussians - n) if room is None else room
     scales = torch.exp(params["log_scales"].detach()).max(-1).values
     clone = high & (scales <= cfg.percent_dense * extent)
     split = high & ~clone
@@ -118,10 +123,12 @@ def densify_and_prune(params: Params, optimizer, state: dict[str, Tensor], cfg: 
     remove = torch.zeros(n_all, dtype=torch.bool, device=grads.device)
     remove[:n] |= split
     remove |= torch.sigmoid(params["opacity_logits"].detach()) < cfg.prune_opacity
+    big = torch.exp(params["log_scales"].detach()).max(-1).values > 0.1 * extent
     if cfg.opacity_reset_every and step > cfg.opacity_reset_every:
         radii = torch.cat([state["max_radii"], torch.zeros(n_new, device=grads.device)])
-        big = torch.exp(params["log_scales"].detach()).max(-1).values > 0.1 * extent
         remove |= (radii > cfg.prune_screen_radius) | big
+    elif not cfg.opacity_reset_every:  # no reset to wait for: huge Gaussians go at once
+        remove |= big
     if remove.all():  # never remove everything: keep the most opaque one
         remove[torch.argmax(params["opacity_logits"].detach())] = False
     keep(params, optimizer, ~remove)

@@ -18,6 +18,8 @@ import torch
 
 from splat4d.cameras import DatasetView
 from splat4d.checkpoint import load_checkpoint, save_checkpoint
+from splat4d.constants import TEMPORAL_CULL
+from splat4d.covariance import condition_on_time, temporal_marginal
 from splat4d.errors import CheckpointError, OutputExistsError, Splat4DError
 from splat4d.fileio import atomic_path
 from splat4d.model import Gaussians4D
@@ -28,8 +30,8 @@ from .config import TrainConfig
 from .confidence import confidence_maps
 from .data import Dataset, View, downscale_view, relative_name
 from .evaluate import evaluate, view_target
-from .initialize import (carved_init, default_init_radius, knn, initial_parameters, look_at_centre, mesh_points,
-                         random_ball)
+from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
+                         mesh_points, point_cloud_init, random_ball)
 from .losses import dssim, l1, psnr
 from .rasterize import rasterize
 
@@ -49,18 +51,18 @@ def pick_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def mean_lr(step: int, cfg: TrainConfig, extent: float) -> float:
+def mean_lr(step: float, cfg: TrainConfig, extent: float) -> float:
     """Exponential decay from lr_means to lr_means_final over the run (official `get_expon_lr_func`)."""
     u = min(max(step / max(cfg.iters, 1), 0.0), 1.0)
     lr0, lr1 = cfg.lr_means * extent, cfg.lr_means_final * extent
     return math.exp((1 - u) * math.log(lr0) + u * math.log(lr1))
 
 
-def active_sh(step: int, cfg: TrainConfig) -> tuple[int, int]:
+def active_sh(step: float, cfg: TrainConfig) -> tuple[int, int]:
     """(spatial, time) SH degree in use at `step`: spatial first, then time, one more every sh_increase_every."""
     if not cfg.sh_increase_every:
         return cfg.sh_degree, cfg.sh_degree_t
-    k = step // cfg.sh_increase_every
+    k = int(step // cfg.sh_increase_every)
     return min(k, cfg.sh_degree), min(max(0, k - cfg.sh_degree), cfg.sh_degree_t)
 
 
@@ -72,6 +74,21 @@ def smoothness_loss(velocities: torch.Tensor, nbr: torch.Tensor, nbr_dist: torch
     w = torch.exp(-100.0 * nbr_dist)
     diff = torch.linalg.vector_norm(velocities[:, None, :] - velocities[nbr], dim=-1)
     return (w * diff).sum(-1).mean() / nbr.shape[1]
+
+
+def scale_ratio_loss(log_scales: torch.Tensor, max_ratio: float) -> torch.Tensor:
+    """PhysGaussian's anisotropy penalty (nerfstudio splatfacto `use_scale_regularization`):
+    mean(max(s_max / s_min, r) - r) over the spatial scales, so no Gaussian grows into a needle or a sheet thinner
+    than 1 / r of its width unless the images pay for it."""
+    ratio = torch.exp(log_scales.max(-1).values - log_scales.min(-1).values)
+    return (ratio.clamp_min(max_ratio) - max_ratio).mean()
+
+
+def alive_at(t: float, t_means: torch.Tensor, var_t: torch.Tensor) -> torch.Tensor:
+    """Indices of the Gaussians a slice at time `t` draws (temporal marginal above the cull). Slicing only those
+    gives the same image and gradients (the others are culled and get none) at a fraction of the cost: with
+    short-lived Gaussians, most of the model is asleep at any one time."""
+    return torch.nonzero(temporal_marginal(t, t_means, var_t) > TEMPORAL_CULL)[:, 0]
 
 
 @dataclass
@@ -89,7 +106,7 @@ class Trainer:
     """Holds a run's state; `run` trains to `config.iters` (or `stop_at`), writing checkpoints."""
 
     def __init__(self, dataset: Dataset, config: TrainConfig, out: str | os.PathLike, resume: bool = False,
-                 force: bool = False, progress: bool = True):
+                 force: bool = False, progress: bool = True, started: float | None = None):
         self.ds, self.cfg, self.out, self.progress = dataset, config, Path(out), progress
         self.device = pick_device(config.device)
         self.bg = torch.tensor(dataset.background, dtype=torch.float32, device=self.device)
@@ -97,7 +114,12 @@ class Trainer:
         self.extent = 1.1 * max(cam_radius, 1e-3)  # official cameras_extent
         self.time_range = dataset.time_range
         self.generator = torch.Generator().manual_seed(config.seed)
+        # a time budget counts the set-up too (from `started`, a time.perf_counter() reading: the command's start)
+        self.clock = time.perf_counter() if started is None else started
+        self.step_seconds = 0.0  # running mean of a step's duration
+        self.elapsed_before = 0.0  # seconds spent by the run before it was resumed
         self.step = 0
+        self._last_vstep = 0.0
         self.losses: list[float] = []
         self._views_at: dict[int, list[View]] = {1: dataset.train}
         self._conf = self._confidence() if config.confidence else {}
@@ -110,6 +132,7 @@ class Trainer:
                 raise OutputExistsError(f"{self.out} already exists (use --force to overwrite, or --resume)")
             self._init_params()
         self.strategy_state = strategy.initialize_state(len(self.params["means"]), self.device)
+        self._last_vstep = self.vstep()
         if resume and "strategy" in self._loaded_state:
             self.strategy_state = {k: v.to(self.device) for k, v in self._loaded_state["strategy"].items()}
         self._nbr = None
@@ -118,16 +141,29 @@ class Trainer:
     def _init_params(self) -> None:
         cfg = self.cfg
         t_means = None
+        rgb = None
         if cfg.init_mesh:
             points, rgb = mesh_points(cfg.init_mesh, cfg.num_gaussians, cfg.seed)
+        elif cfg.init == "points":
+            if not cfg.init_points:
+                raise Splat4DError("init 'points' needs a point cloud file (--init-points FILE)")
+            points, rgb, _ = point_cloud_init(Path(cfg.init_points), cfg.num_gaussians, self.ds, self.generator)
         else:
             centre = look_at_centre(self.ds)
-            radius = cfg.init_radius or default_init_radius(self.ds, centre)
-            hull = carved_init(cfg.num_gaussians, radius, centre, self.ds, self.generator) if cfg.init_carve else None
-            if hull is not None:
-                points, t_means = hull
+            if cfg.init == "frustum":
+                found = frustum_init(cfg.num_gaussians, self.ds, centre, self.generator)
+            elif cfg.init == "ball":
+                radius = cfg.init_radius or default_init_radius(self.ds, centre)
+                found = carved_init(cfg.num_gaussians, radius, centre, self.ds, self.generator) \
+                    if cfg.init_carve else None
             else:
+                raise Splat4DError(f"unknown init {cfg.init!r} (expected ball, frustum or points)")
+            if found is not None:
+                points, t_means = found
+            else:
+                radius = cfg.init_radius or default_init_radius(self.ds, centre)
                 points = random_ball(cfg.num_gaussians, radius, centre, self.generator)
+        if rgb is None:
             rgb = 0.5 + 0.05 * torch.randn(points.shape, generator=self.generator)
         t_scale = None
         if cfg.t_scale_init_frames:
@@ -137,6 +173,7 @@ class Trainer:
         raw = initial_parameters(points, rgb, self.time_range, cfg.sh_degree, cfg.sh_degree_t, self.generator,
                                  t_scale, t_means)
         self._make_optimizer(raw)
+        self.n_initial = len(raw["means"])
         self._loaded_state = {}
 
     def _make_optimizer(self, raw: dict[str, torch.Tensor]) -> None:
@@ -165,6 +202,8 @@ class Trainer:
         self.optimizer.load_state_dict(st["optimizer"])
         self.generator.set_state(st["generator"])
         self.step = int(st["step"])
+        self.elapsed_before = float(st.get("elapsed", 0.0))
+        self.n_initial = int(st.get("n_initial", self.cfg.num_gaussians))
         self.losses = list(st.get("losses", []))
         self._loaded_state = st
 
@@ -203,13 +242,13 @@ class Trainer:
 
     def _resolution_factor(self) -> int:
         for frac, k in self.cfg.resolution_ramp:
-            if self.step < frac * self.cfg.iters:
+            if self.vstep() < frac * self.cfg.iters:
                 return int(k)
         return 1
 
     def _pick(self) -> int:
         """Index of the next training image (uniform, from the run's own generator)."""
-        static = self.step < self.cfg.static_iters
+        static = self.vstep() < self.cfg.static_iters
         if static:
             first = min(v.frame_id for v in self.ds.train)
             pool = [i for i, v in enumerate(self.ds.train) if v.frame_id == first]
@@ -242,17 +281,20 @@ class Trainer:
         cfg = self.cfg
         for g in self.optimizer.param_groups:
             if g["name"] == "means":
-                g["lr"] = mean_lr(self.step, cfg, self.extent)
-        deg, deg_t = active_sh(self.step, cfg)
+                g["lr"] = mean_lr(self.vstep(), cfg, self.extent)
+        deg, deg_t = active_sh(self.vstep(), cfg)
         factor = self._resolution_factor()
-        static = self.step < cfg.static_iters
+        static = self.vstep() < cfg.static_iters
         loss_sum, psnr_sum = 0.0, 0.0
         model = self.model()  # the parameters only change at the optimizer step, after the batch
+        with torch.no_grad():
+            var_t = model.covariance_4d()[:, 3, 3]
         for _ in range(cfg.batch_size):
             i = self._pick()
             view = self._views(factor)[i]
             target, mask = view_target(view, self.ds.background, self.device)
-            g = model.slice(view.time, sh_degree_t=deg_t)
+            shown = alive_at(view.time, model.t_means.detach(), var_t)
+            g = model.select(shown).slice(view.time, sh_degree_t=deg_t)
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
             if cfg.densify.enabled:
                 out.means2d.retain_grad()
@@ -263,11 +305,15 @@ class Trainer:
             if cfg.smooth_weight and not static:
                 if self._nbr is None or self.step % 100 == 0:
                     self._nbr = knn(self.params["means"].detach(), k=8)
-                loss = loss + cfg.smooth_weight * smoothness_loss(g.velocities, *self._nbr)
+                velocities = condition_on_time(model.covariance_4d())[1]
+                loss = loss + cfg.smooth_weight * smoothness_loss(velocities, *self._nbr)
+            if cfg.lambda_scale_ratio:
+                loss = loss + cfg.lambda_scale_ratio * scale_ratio_loss(self.params["log_scales"][shown],
+                                                                        cfg.max_scale_ratio)
             (loss / cfg.batch_size).backward()
             if cfg.densify.enabled and out.means2d.grad is not None:
                 strategy.accumulate(self.strategy_state, out.means2d.grad, out.radii, view.camera.width,
-                                    view.camera.height)
+                                    view.camera.height, shown)
             loss_sum += float(loss.detach())
             psnr_sum += psnr(out.rgb, target)
         if static:  # static-to-dynamic: time frozen, q_r tied to q_l (static under the 'current' convention)
@@ -282,17 +328,44 @@ class Trainer:
         self.step += 1
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
 
+    def elapsed(self) -> float:
+        """Seconds this run has spent, across resumes."""
+        return self.elapsed_before + time.perf_counter() - self.clock
+
+    def vstep(self) -> float:
+        """Where the run is in its schedule, in steps of the `iters`-step recipe: the step itself, or under a time
+        budget the elapsed share of the budget times `iters` (so every schedule stretches to the budget)."""
+        if not self.cfg.minutes:
+            return float(self.step)
+        return self.cfg.iters * min(self.elapsed() / (60.0 * self.cfg.minutes), 1.0)
+
+    def finished(self) -> bool:
+        """Whether the recipe is done. Under a time budget, the time to save and to score the test views (about a
+        third of a training step per image) is kept out of it, so the command ends on time."""
+        if self.cfg.minutes:
+            reserve = self.step_seconds * (1 + len(self.ds.test) / (3 * self.cfg.batch_size))
+            return self.elapsed() + reserve >= 60.0 * self.cfg.minutes
+        return self.step >= self.cfg.iters
+
     def _maybe_densify(self) -> None:
         d = self.cfg.densify
         if not d.enabled:
             return
         s = self.step + 1
-        if d.start < s < d.stop and s % d.every == 0:
+        v = float(s) if not self.cfg.minutes else self.vstep()
+        if d.start < v < d.stop and s % d.every == 0:
+            room = d.max_gaussians - len(self.params["means"])
+            if d.budget_curve:
+                share = min(max((v - d.start) / max(d.stop - d.start, 1), 0.0), 1.0)
+                target = self.n_initial + share * (d.max_gaussians - self.n_initial)
+                room = min(room, int(target) - len(self.params["means"]))
             strategy.densify_and_prune(self.params, self.optimizer, self.strategy_state, d, self.extent, s,
-                                       self.cfg.rotation_convention, self.generator)
+                                       self.cfg.rotation_convention, self.generator, max(room, 0))
             self._nbr = None
-        if d.opacity_reset_every and s % d.opacity_reset_every == 0 and s < d.stop:
+        reset = d.opacity_reset_every
+        if reset and v < d.stop and int(v // reset) > int(self._last_vstep // reset):
             strategy.reset_opacity(self.params, self.optimizer)
+        self._last_vstep = v
 
     # --- output ---------------------------------------------------------------------------------------------
     def save(self) -> None:
@@ -310,28 +383,38 @@ class Trainer:
                         views=[DatasetView(relative_name(v.name, self.ds.root), v.camera, v.time)
                                for v in self.ds.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
+                 "elapsed": self.elapsed(), "n_initial": self.n_initial,
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()}}
         with atomic_path(state_path(self.out), force=True) as tmp:
             torch.save(state, tmp)
 
     def run(self, stop_at: int | None = None) -> TrainResult:
+        """Train until the recipe's end (its iterations, or its time budget) or iteration `stop_at`, then save."""
         from tqdm import tqdm
 
         cfg = self.cfg
-        end = cfg.iters if stop_at is None else min(stop_at, cfg.iters)
         start_time = time.perf_counter()
-        bar = tqdm(total=cfg.iters, initial=self.step, unit="it", desc="train", disable=not self.progress,
-                   dynamic_ncols=True)
+        budget = 60.0 * cfg.minutes if cfg.minutes else None
+        if budget:  # a bar of seconds, so it shows the time left
+            bar = tqdm(total=round(budget), initial=min(round(self.elapsed()), round(budget)), unit="s",
+                       desc="train", disable=not self.progress, dynamic_ncols=True,
+                       bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s, {remaining} left{postfix}")
+        else:
+            bar = tqdm(total=cfg.iters, initial=self.step, unit="it", desc="train", disable=not self.progress,
+                       dynamic_ncols=True)
         ema_psnr = None
         try:
-            while self.step < end:
+            while not self.finished() and (stop_at is None or self.step < stop_at):
+                t = time.perf_counter()
                 loss, p = self.train_step()
+                dt = time.perf_counter() - t
+                self.step_seconds = dt if not self.step_seconds else 0.9 * self.step_seconds + 0.1 * dt
                 self.losses.append(loss)
                 ema_psnr = p if ema_psnr is None else 0.9 * ema_psnr + 0.1 * p
-                bar.update(1)
+                bar.update(min(self.elapsed(), budget) - bar.n if budget else 1)
                 bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{ema_psnr:.2f}", n=f"{len(self.params['means']):,}",
-                                refresh=False)
-                if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and self.step < end:
+                                **({"it": self.step} if budget else {}), refresh=False)
+                if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0 and not self.finished():
                     self.save()
         except KeyboardInterrupt:
             bar.close()

@@ -9,8 +9,10 @@ HELP = "fit 4D Gaussians to a multi-view video / image-matrix dataset"
 DESCRIPTION = """Fit native 4D Gaussians to a dataset and write a splat4d checkpoint.
 
 Layouts (auto-detected): dnerf (transforms_*.json), orbit (views/<v>/<f>.png + cameras.json), efficient4d
-(<f>.png strips of 16 views), sv4d (*_v00k.mp4). Presets: efficient4d (fast, 500 iterations, no densification),
-full (official 4DGS schedule with densification). Ctrl-C saves a resumable checkpoint; --resume continues it."""
+(<f>.png strips of 16 views), sv4d (*_v00k.mp4). The default preset, auto, reads the data (views per time, an open
+floor or backdrop in the alpha, image size, a point cloud beside it), prints what it decided and why, and trains for
+a time budget (--minutes); every decision has an option. Named presets: efficient4d (500 iterations, no
+densification) and full (the official 4DGS schedule). Ctrl-C saves a resumable checkpoint; --resume continues it."""
 
 
 def _ramp(text: str) -> tuple[tuple[float, int], ...]:
@@ -26,9 +28,15 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
-    p.add_argument("--preset", default="efficient4d", choices=list(PRESETS),
+    p.add_argument("--preset", default="auto", choices=list(PRESETS),
                    help="; ".join(f"{k}: {v[0]}" for k, v in PRESETS.items()))
-    p.add_argument("--iters", type=int, help="iterations (default: the preset's; schedules scale with it)")
+    budget = p.add_mutually_exclusive_group()
+    budget.add_argument("--minutes", type=float, metavar="M",
+                        help="time budget: the run ends after M minutes, set-up included, and every schedule "
+                             "stretches to it (default: the auto recipe's, 4 for an image matrix, 8 for one camera "
+                             "per time)")
+    budget.add_argument("--iters", type=int, help="run this many iterations instead of a time budget (the "
+                                                  "preset's schedules scale with it; runs are then reproducible)")
     p.add_argument("--resume", action="store_true", help="continue the run saved in --out (bit for bit)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out")
@@ -43,6 +51,18 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="train on the alpha as given even where views contradict each other (default: transparent "
                         "pixels whose rays cross a surface other views see opaque get no loss)")
     p.add_argument("--num-gaussians", type=int, help="Gaussians at initialisation")
+    p.add_argument("--max-gaussians", type=int, help="cap on densification (default: the recipe's)")
+    p.add_argument("--no-densify", action="store_true", help="keep the initial Gaussians (no clone, split or prune)")
+    p.add_argument("--init", choices=["auto", "ball", "frustum", "points"], default="auto",
+                   help="initial Gaussians: in a ball carved by the masks, over the volume the cameras see, or on a "
+                        "point cloud (default: the dataset's fused.ply / points3d.ply / COLMAP points3D when it has "
+                        "one, else frustum for an open floor or backdrop, else ball)")
+    p.add_argument("--init-points", metavar="FILE", help="point cloud (PLY or COLMAP points3D) to initialise on")
+    p.add_argument("--scale-ratio-weight", type=float, metavar="W",
+                   help="penalty on Gaussians more than 10:1 anisotropic (default: the recipe's, 0.1 for one camera "
+                        "per time, else 0)")
+    p.add_argument("--t-scale-init", type=float, metavar="FRAMES",
+                   help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
     p.add_argument("--init-mesh", metavar="FILE", help="initialise on the surface of this mesh (4DGen)")
     p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree")
     p.add_argument("--sh-degree-t", type=int, choices=range(3), help="time (Fourier) SH degree")
@@ -59,26 +79,60 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def config_from_args(args: argparse.Namespace, resumed: dict | None = None):
-    """TrainConfig from the preset (or the resumed run's stored config) and the command-line overrides."""
+def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | None = None):
+    """(TrainConfig, decisions): the preset (the auto recipe reads `dataset`) or the resumed run's stored config,
+    then the command-line overrides."""
     import dataclasses
 
     from splat4d.train.config import TrainConfig, preset
+    from splat4d.train.recipe import auto_recipe, read_traits
 
-    cfg = TrainConfig.from_dict(resumed) if resumed else preset(args.preset)
+    decisions = []
+    if resumed:
+        cfg = TrainConfig.from_dict(resumed)
+    elif args.preset == "auto":
+        cfg, decisions = auto_recipe(read_traits(dataset))
+    else:
+        cfg = preset(args.preset)
     if args.iters and not resumed:
-        cfg = cfg.scaled(args.iters)
+        cfg = dataclasses.replace(cfg.scaled(args.iters), minutes=None)
     elif args.iters:
-        cfg = dataclasses.replace(cfg, iters=args.iters)
+        cfg = dataclasses.replace(cfg, iters=args.iters, minutes=None)
+    if args.minutes:
+        cfg = dataclasses.replace(cfg, minutes=args.minutes)
     over = {"seed": args.seed if not resumed else cfg.seed, "strict_alpha": args.strict_alpha or None,
             "num_gaussians": args.num_gaussians,
             "init_mesh": args.init_mesh, "sh_degree": args.sh_degree, "sh_degree_t": args.sh_degree_t,
             "static_iters": args.static_iters, "resolution_ramp": args.resolution_ramp,
             "smooth_weight": args.smooth_weight, "batch_size": args.batch_size,
-            "checkpoint_every": args.checkpoint_every, "device": args.device}
+            "checkpoint_every": args.checkpoint_every, "device": args.device,
+            "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init}
     if args.no_confidence:
         over["confidence"] = False
-    return dataclasses.replace(cfg, **{k: v for k, v in over.items() if v is not None})
+    if args.init_points:
+        over.update(init="points", init_points=args.init_points)
+    elif args.init != "auto":
+        over["init"] = args.init
+    dens = {}
+    if args.max_gaussians:
+        dens["max_gaussians"] = args.max_gaussians
+    if args.no_densify:
+        dens["enabled"] = False
+    if dens:
+        over["densify"] = dataclasses.replace(cfg.densify, **dens)
+    return dataclasses.replace(cfg, **{k: v for k, v in over.items() if v is not None}), decisions
+
+
+def given_value(args: argparse.Namespace, option: str) -> str | None:
+    """How `option` (e.g. '--minutes') was given on the command line, or None when it was left to the recipe."""
+    value = getattr(args, option.lstrip("-").replace("-", "_"), None)
+    if value is None or value is False or value == "auto":
+        return None
+    if value is True:
+        return ""
+    if option == "--resolution-ramp":
+        return ",".join(f"{f:g}:{k}" for f, k in value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 def background_name(rgb) -> str:
@@ -88,6 +142,10 @@ def background_name(rgb) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    import math
+    import time
+
+    started = time.perf_counter()  # a time budget covers the whole command
     from pathlib import Path
 
     from splat4d.checkpoint import read_metadata
@@ -96,10 +154,17 @@ def run(args: argparse.Namespace) -> int:
     from splat4d.train.data import load_dataset
     from splat4d.train.trainer import Trainer
 
-    for name in ("iters", "downscale", "num_gaussians", "batch_size", "stop_at"):
+    for name in ("iters", "downscale", "num_gaussians", "max_gaussians", "batch_size", "stop_at"):
         v = getattr(args, name)
         if v is not None and v < 1:
             raise Splat4DError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
+    for name in ("minutes", "t_scale_init"):
+        v = getattr(args, name)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise Splat4DError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+    if args.scale_ratio_weight is not None and not (math.isfinite(args.scale_ratio_weight)
+                                                    and args.scale_ratio_weight >= 0):
+        raise Splat4DError(f"--scale-ratio-weight must be >= 0, got {args.scale_ratio_weight}")
     resumed, recorded_bg = None, None
     if args.resume:
         if not Path(args.out).exists():
@@ -110,14 +175,18 @@ def run(args: argparse.Namespace) -> int:
             run_facts = ("iteration", "dataset", "layout", "background_reason", "alpha_disagreement", "alpha_ignored")
             resumed = {k: v for k, v in resumed.items() if k not in run_facts}
         recorded_bg = meta.get("background")
-    cfg = config_from_args(args, resumed)
     ds = load_dataset(args.data, layout=args.layout, downscale=args.downscale, background=args.background)
+    cfg, decisions = config_from_args(args, ds, resumed)
     if recorded_bg is not None and args.background is None:  # a run keeps the background it started with
         ds.background, ds.background_reason = tuple(float(x) for x in recorded_bg), "the resumed checkpoint's"
-    print(f"splat4d train: {ds.summary()}; preset {cfg.preset}, {cfg.iters} iterations")
+    length = f"{cfg.minutes:g} minutes" if cfg.minutes else f"{cfg.iters} iterations"
+    print(f"splat4d train: {ds.summary()}; preset {cfg.preset}, {length}" + (":" if decisions else ""))
+    for d in decisions:
+        print(f"  - {d.line(given_value(args, d.option))}")
     print(f"splat4d train: background {background_name(ds.background)}: {ds.background_reason}"
           + ("" if ds.background_reason == "--background" else "; --background R G B to change"))
-    trainer = Trainer(ds, cfg, args.out, resume=args.resume, force=args.force, progress=not args.quiet)
+    trainer = Trainer(ds, cfg, args.out, resume=args.resume, force=args.force, progress=not args.quiet,
+                      started=started)
     print(f"splat4d train: {describe(trainer.alpha_conflicts, cfg.strict_alpha, ds.train)}")
     try:
         result = trainer.run(stop_at=args.stop_at)
@@ -126,10 +195,11 @@ def run(args: argparse.Namespace) -> int:
         return 130
     msg = f"splat4d train: wrote {result.out} ({result.n_gaussians:,} Gaussians, {result.iterations} iterations, " \
           f"{result.seconds:.1f} s)"
-    if result.iterations < cfg.iters:
+    done = trainer.finished()
+    if not done:
         msg += "; stopped early, continue with --resume"
     print(msg)
-    if result.iterations >= cfg.iters and ds.test:
+    if done and ds.test:
         ev = trainer.evaluate_test()
         print(f"splat4d train: test views: PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.4f} "
               f"({ev['num_views']} views)")

@@ -1,0 +1,194 @@
+"""The default recipe reads the data, densifies under its cap, keeps to its time budget, and starts from a dataset's
+own point cloud."""
+
+import dataclasses
+import shutil
+import struct
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from splat4d.checkpoint import load_checkpoint
+from splat4d.cli import main
+from splat4d.train.config import preset
+from splat4d.train.data import load_dataset
+from splat4d.train.points import find_point_cloud, read_point_cloud
+from splat4d.train.recipe import auto_recipe, read_traits
+from splat4d.train.trainer import Trainer
+
+
+@pytest.fixture(scope="module")
+def matrix(tmp_path_factory):
+    """A bounded object as an image matrix: 4 views x 3 frames at 64 px, transparent around it."""
+    from splat4d.samples.dataset import DatasetConfig, write_dataset
+
+    root = tmp_path_factory.mktemp("data") / "spinner"
+    write_dataset("spinner", root, DatasetConfig(views=4, frames=3, size=64, test_views=4))
+    return root
+
+
+@pytest.fixture(scope="module")
+def floor(tmp_path_factory):
+    """An opaque floor to the horizon, one camera per time: 12 frames at 48 px."""
+    from splat4d.samples import FloorConfig, write_dataset
+
+    root = tmp_path_factory.mktemp("data") / "floor"
+    write_dataset("floor", root, FloorConfig(frames=12, size=48, test_views=2))
+    return root
+
+
+def decisions_text(decisions) -> str:
+    return "\n".join(d.line() for d in decisions)
+
+
+def test_an_image_matrix_of_a_bounded_object(matrix):
+    traits = read_traits(load_dataset(matrix))
+    assert traits.views_per_time == 4 and not traits.one_view_per_time
+    assert traits.has_alpha and not traits.open_backdrop and traits.point_cloud is None
+    cfg, decisions = auto_recipe(traits)
+    assert cfg.preset == "auto" and cfg.minutes == 4.0 and cfg.init == "ball"
+    assert cfg.lambda_scale_ratio == 0.0 and cfg.densify.enabled and cfg.densify.budget_curve
+    assert cfg.resolution_ramp == ()  # 64 px: nothing to gain from coarser images
+    text = decisions_text(decisions)
+    assert "image matrix" in text and "a bounded object" in text and "--minutes" in text
+
+
+def test_one_camera_per_time_over_a_floor(floor):
+    traits = read_traits(load_dataset(floor))
+    assert traits.one_view_per_time and traits.open_backdrop
+    cfg, decisions = auto_recipe(traits)
+    assert cfg.minutes == 8.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
+    text = decisions_text(decisions)
+    assert "one camera per time" in text and "floor or backdrop" in text and "--init" in text
+
+
+def test_data_without_alpha_is_an_open_scene(matrix):
+    ds = load_dataset(matrix)
+    ds.train = [dataclasses.replace(v, alpha=None) for v in ds.train]
+    traits = read_traits(ds)
+    assert not traits.has_alpha and traits.open_backdrop
+    cfg, decisions = auto_recipe(traits)
+    assert cfg.init == "frustum" and "no alpha" in decisions_text(decisions)
+
+
+def test_large_images_train_coarse_to_fine():
+    from splat4d.train.recipe import DataTraits
+
+    traits = DataTraits(images=256, frames=16, views_per_time=16, has_alpha=True, border_opaque=0.0,
+                        width=256, height=256, point_cloud=None)
+    cfg, decisions = auto_recipe(traits)
+    assert cfg.resolution_ramp and all(k > 1 for _, k in cfg.resolution_ramp)
+    assert "--resolution-ramp" in decisions_text(decisions)
+
+
+def write_ply(path, points, colors):
+    import trimesh
+
+    trimesh.PointCloud(points, colors=colors).export(path)
+
+
+def test_point_cloud_init_is_used_when_the_dataset_ships_one(matrix, tmp_path):
+    root = tmp_path / "withcloud"
+    shutil.copytree(matrix, root)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-0.3, 0.3, (300, 3))
+    cols = np.tile([[255, 0, 0, 255]], (300, 1)).astype(np.uint8)
+    write_ply(root / "fused.ply", pts, cols)
+    ds = load_dataset(root)
+    traits = read_traits(ds)
+    assert traits.point_cloud == root / "fused.ply"
+    cfg, decisions = auto_recipe(traits)
+    assert cfg.init == "points" and "fused.ply" in decisions_text(decisions)
+    tr = Trainer(ds, dataclasses.replace(cfg.scaled(2), minutes=None, num_gaussians=1000), tmp_path / "p.safetensors",
+                 progress=False)
+    means = tr.params["means"].detach().double().numpy()
+    assert len(means) == 300  # every point of the cloud, no more
+    assert np.abs(np.sort(means, 0) - np.sort(pts, 0)).max() < 1e-6
+    rgb = tr.model().detach().slice(0.5).colors(torch.zeros(3))
+    assert float(rgb[:, 0].min()) > 0.9 and float(rgb[:, 1:].max()) < 0.1  # the cloud's colours
+
+
+def test_point_cloud_in_another_frame_or_corrupt_is_one_line(matrix, tmp_path, capsys):
+    root = tmp_path / "badcloud"
+    shutil.copytree(matrix, root)
+    write_ply(root / "fused.ply", np.random.default_rng(0).uniform(50, 60, (100, 3)), None)
+    args = ["train", str(root), "--out", str(tmp_path / "x.safetensors"), "--iters", "2", "--quiet"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "fused.ply" in err and "lie in view" in err and len(err.strip().splitlines()) == 1
+    (root / "fused.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 100\n")
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "fused.ply" in err and len(err.strip().splitlines()) == 1
+
+
+def test_colmap_points3d_text_and_binary(tmp_path):
+    pts = np.array([[0.1, 0.2, 0.3], [-1.0, 2.0, 0.5]])
+    rgb = np.array([[255, 0, 0], [0, 128, 255]])
+    text = "# 3D point list\n" + "".join(f"{i + 1} {p[0]} {p[1]} {p[2]} {c[0]} {c[1]} {c[2]} 0.5 1 0 2 3\n"
+                                          for i, (p, c) in enumerate(zip(pts, rgb)))
+    (tmp_path / "points3D.txt").write_text(text)
+    blob = struct.pack("<Q", 2)
+    for i, (p, c) in enumerate(zip(pts, rgb)):
+        blob += struct.pack("<QdddBBBdQ", i + 1, *p, *map(int, c), 0.5, 2) + struct.pack("<IIII", 1, 0, 2, 3)
+    (tmp_path / "sparse" / "0").mkdir(parents=True)
+    (tmp_path / "sparse" / "0" / "points3D.bin").write_bytes(blob)
+    assert find_point_cloud(tmp_path) == tmp_path / "sparse" / "0" / "points3D.bin"
+    for name in ("points3D.txt", "sparse/0/points3D.bin"):
+        xyz, col = read_point_cloud(tmp_path / name)
+        np.testing.assert_allclose(xyz, pts)
+        np.testing.assert_allclose(col, rgb / 255.0)
+    (tmp_path / "cut.bin").write_bytes(blob[:-20])
+    with pytest.raises(Exception, match="truncated"):
+        read_point_cloud(tmp_path / "cut.bin")
+
+
+def test_densification_grows_under_the_cap_along_the_budget_curve(matrix, tmp_path):
+    ds = load_dataset(matrix)
+    cfg, _ = auto_recipe(read_traits(ds))
+    cfg = dataclasses.replace(cfg.scaled(40), minutes=None, num_gaussians=1500, seed=1)
+    cfg = dataclasses.replace(cfg, densify=dataclasses.replace(cfg.densify, max_gaussians=2500))
+    tr = Trainer(ds, cfg, tmp_path / "d.safetensors", progress=False)
+    counts = []
+    for _ in range(cfg.iters):
+        tr.train_step()
+        counts.append(len(tr.params["means"]))
+    d = cfg.densify
+    assert max(counts) <= 2500 and counts[-1] > 1500 + 300, counts[::5]
+    for step, n in enumerate(counts, start=1):  # never ahead of the linear budget curve
+        share = min(max((step - d.start) / (d.stop - d.start), 0.0), 1.0)
+        assert n <= 1500 + share * 1000 + 1, (step, n)
+    assert len(tr.optimizer.state[tr.params["means"]]["exp_avg"]) == counts[-1]
+
+
+def test_minutes_ends_on_time(matrix, tmp_path, capsys):
+    out = tmp_path / "timed.safetensors"
+    t = time.perf_counter()
+    assert main(["train", str(matrix), "--out", str(out), "--minutes", "0.5", "--num-gaussians", "800",
+                 "--quiet"]) == 0
+    wall = time.perf_counter() - t
+    said = capsys.readouterr().out
+    assert "preset auto, 0.5 minutes" in said and "test views: PSNR" in said
+    assert "image matrix" in said and "--minutes 0.5 given" in said  # the recipe's choice, overridden
+    assert 0.9 * 30.0 <= wall <= 1.1 * 30.0, wall
+    ck = load_checkpoint(out)
+    assert ck.training["minutes"] == 0.5 and ck.training["iteration"] > 5
+
+
+def test_resume_with_densification_equals_uninterrupted(matrix, tmp_path):
+    ds = load_dataset(matrix)
+    cfg, _ = auto_recipe(read_traits(ds))
+    cfg = dataclasses.replace(cfg.scaled(24), minutes=None, num_gaussians=1000, seed=2)
+    Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False).run()
+    Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=11)
+    Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
+    a, b = load_checkpoint(tmp_path / "a.safetensors").model, load_checkpoint(tmp_path / "b.safetensors").model
+    assert len(a.means) > 1000  # it did densify
+    for k, v in a.tensors().items():
+        torch.testing.assert_close(v, b.tensors()[k], rtol=0, atol=0)
+
+
+def test_named_presets_are_kept():
+    assert preset("efficient4d").preset == "efficient4d" and preset("full").densify.enabled

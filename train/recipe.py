@@ -1,0 +1,140 @@
+"""The default recipe (preset ``auto``): look at the dataset, then choose the training settings for it.
+
+`read_traits` measures what matters (views per time, whether the alpha holds an open floor or backdrop or a bounded
+object, image size, frame count, a point cloud beside the data); `auto_recipe` turns the traits into a
+`TrainConfig` plus the list of `Decision`s it took, each with its reason and the option that overrides it, which
+``splatreel train`` prints. The choices were measured on the procedural samples of every regime (README, "What the
+default recipe decides").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .config import TrainConfig, preset
+from .data import Dataset
+from .points import find_point_cloud
+
+#: Layouts whose views come from a video-to-multi-view generator rather than a renderer or a capture.
+GENERATED_LAYOUTS = ("efficient4d", "sv4d")
+#: Share of the image border that must be opaque (over the training images) for the alpha to hold an open floor
+#: or backdrop rather than a bounded object.
+OPEN_BORDER_SHARE = 0.25
+
+
+@dataclass(frozen=True)
+class DataTraits:
+    """What the recipe reads from a dataset."""
+
+    images: int
+    frames: int
+    views_per_time: float
+    has_alpha: bool
+    #: Share of border pixels that are opaque (alpha >= 0.5), over the training images; 1 without alpha.
+    border_opaque: float
+    width: int
+    height: int
+    point_cloud: Path | None
+    #: The dataset's layout (`splat4d.train.data.LAYOUTS`).
+    layout: str = "dnerf"
+
+    @property
+    def generated(self) -> bool:
+        """Views a multi-view generator made (Efficient4D, SV4D): they disagree with each other in places."""
+        return self.layout in GENERATED_LAYOUTS
+
+    @property
+    def one_view_per_time(self) -> bool:
+        return self.views_per_time < 1.5
+
+    @property
+    def open_backdrop(self) -> bool:
+        return self.border_opaque >= OPEN_BORDER_SHARE
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One choice of the recipe: what it set, why, and which option overrides it."""
+
+    what: str
+    why: str
+    option: str
+
+    def line(self, given: str | None = None) -> str:
+        """One line for the user; `given` is the option's value when the command line overrode the decision."""
+        if given is None:
+            tail = f"{self.option} to change"
+        else:
+            tail = f"{self.option} {given} given" if given else f"{self.option} given"
+        return f"{self.what} ({self.why}; {tail})"
+
+
+def border_opaque_share(ds: Dataset) -> float:
+    """Share of the outermost 2% of pixels (each side) that are opaque, over the training images."""
+    opaque = total = 0
+    for v in ds.train:
+        if v.alpha is None:
+            return 1.0
+        h, w = v.alpha.shape
+        b = max(1, round(0.02 * min(w, h)))
+        ring = np.ones((h, w), bool)
+        ring[b:h - b, b:w - b] = False
+        opaque += int((v.alpha[ring] >= 128).sum())
+        total += int(ring.sum())
+    return opaque / max(total, 1)
+
+
+def read_traits(ds: Dataset) -> DataTraits:
+    w, h = ds.train[0].size
+    return DataTraits(images=len(ds.train), frames=len(ds.frame_times),
+                      views_per_time=len(ds.train) / max(len(ds.frame_times), 1),
+                      has_alpha=any(v.alpha is not None for v in ds.train), border_opaque=border_opaque_share(ds),
+                      width=w, height=h, point_cloud=find_point_cloud(Path(ds.root)), layout=ds.layout)
+
+
+def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
+    """The settings for data with these traits, and the decisions behind them."""
+    cfg = preset("efficient4d")
+    decisions: list[Decision] = []
+    dens = dataclasses.replace(cfg.densify, enabled=True, budget_curve=True, start=50, stop=350, every=25,
+                               grad_threshold=5e-6, opacity_reset_every=0, max_gaussians=150_000)
+    changes: dict = {"preset": "auto", "densify": dens}
+    if traits.one_view_per_time:
+        changes.update(minutes=8.0, lambda_scale_ratio=0.1)
+        decisions.append(Decision("one camera per time: 8 minutes",
+                                  f"{traits.images} images at {traits.frames} times", "--minutes"))
+        decisions.append(Decision("anisotropy penalty 0.1 above 10:1", "a Gaussian only one view supports can take "
+                                  "any depth and stretch into a needle", "--scale-ratio-weight"))
+    else:
+        changes.update(minutes=4.0)
+        decisions.append(Decision(
+            "image matrix: 4 minutes",
+            f"{traits.views_per_time:.0f} views per time", "--minutes"))
+    changes["confidence"] = traits.generated
+    if traits.generated:
+        decisions.append(Decision("Efficient4D's confidence weights on", f"{traits.layout} views are generated and "
+                                  "disagree in places", "--no-confidence"))
+    if traits.point_cloud is not None:
+        changes.update(init="points", init_points=str(traits.point_cloud))
+        decisions.append(Decision(f"init from {traits.point_cloud.name}", "the dataset ships a point cloud",
+                                  "--init"))
+    elif traits.open_backdrop:
+        changes.update(init="frustum")
+        why = "no alpha" if not traits.has_alpha else \
+            f"{100 * traits.border_opaque:.0f}% of the image border is opaque: a floor or backdrop"
+        decisions.append(Decision("init over what the cameras see", why, "--init"))
+    else:
+        changes.update(init="ball")
+        decisions.append(Decision("init in a ball carved by the masks", "a bounded object", "--init"))
+    if max(traits.width, traits.height) >= 256:
+        changes.update(resolution_ramp=((0.1, 4), (0.3, 2)))
+        decisions.append(Decision("coarse-to-fine: 1/4 then 1/2 resolution for the first 30%",
+                                  f"{traits.width}x{traits.height} images", "--resolution-ramp"))
+    decisions.append(Decision(f"densify up to {dens.max_gaussians:,} Gaussians", "detail where gradients ask",
+                              "--max-gaussians"))
+    cfg = dataclasses.replace(cfg, **changes)
+    return cfg, decisions

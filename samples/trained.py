@@ -1,4 +1,5 @@
-"""Trained checkpoints shipped with the package: ``splat4d train`` (efficient4d preset) fitted to a procedural sample.
+"""Trained checkpoints shipped with the package: ``splat4d train`` (the default auto recipe, 500 iterations) fitted
+to a procedural sample.
 
 They give the viewer, the exporters, their tests and first-time users a real trained model without training one.
 `scripts/bundle_sample.sh` regenerates them (the sample's default dataset, seed 0); each checkpoint's metadata

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Regenerate the trained checkpoint shipped in samples/ (splat4d.samples.trained_checkpoint): the 'spinner' sample's
-# default dataset, fitted with the efficient4d preset at seed 0. About 2-3 minutes on 2 cores. Training is
-# deterministic and the dataset is named relatively, so a rebuild on the same software gives the same bytes.
-# The shipped file is replaced only if the new one scores at least 28 dB PSNR on the sample's test views.
+# default dataset, fitted with the default (auto) recipe at seed 0 for a fixed 500 iterations (so the run is
+# deterministic, not time-budgeted) and at most 100k Gaussians (a file under 10 MB). About 3-5 minutes on 2 cores.
+# The dataset is named relatively, so a rebuild on the same software gives the same bytes. The shipped file is
+# replaced only if the new one scores at least 23 dB PSNR on the sample's test views (on white, the D-NeRF
+# convention; the same-camera nearest-image baseline scores 18.5 dB there).
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -10,13 +12,13 @@ TMP="$(mktemp -d)"
 trap 'rm -rf "$TMP"' EXIT
 cd "$TMP"
 splat4d sample spinner spinner
-splat4d train spinner --out spinner.safetensors --preset efficient4d --seed 0
+splat4d train spinner --out spinner.safetensors --seed 0 --iters 500 --max-gaussians 100000
 splat4d eval spinner.safetensors spinner --json eval.json
 python - <<'PY'
 import json, sys
 psnr = json.load(open("eval.json"))["psnr"]
-if psnr < 28.0:
-    sys.exit(f"bundle_sample: test PSNR {psnr:.2f} dB is below 28 dB; samples/ left unchanged")
+if psnr < 23.0:
+    sys.exit(f"bundle_sample: test PSNR {psnr:.2f} dB is below 23 dB; samples/ left unchanged")
 PY
 mv spinner.safetensors "$ROOT/samples/spinner.safetensors"
 chmod 644 "$ROOT/samples/spinner.safetensors"

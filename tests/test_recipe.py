@@ -59,7 +59,7 @@ def test_one_camera_per_time_over_a_floor(floor):
     traits = read_traits(load_dataset(floor))
     assert traits.one_view_per_time and traits.open_backdrop
     cfg, decisions = auto_recipe(traits)
-    assert cfg.minutes == 8.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
+    assert cfg.minutes == 3.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
     text = decisions_text(decisions)
     assert "one camera per time" in text and "floor or backdrop" in text and "--init" in text
 

@@ -33,7 +33,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     budget = p.add_mutually_exclusive_group()
     budget.add_argument("--minutes", type=float, metavar="M",
                         help="time budget: the run ends after M minutes, set-up included, and every schedule "
-                             "stretches to it (default: the auto recipe's, 4 for an image matrix, 8 for one camera "
+                             "stretches to it (default: the auto recipe's, 4 for an image matrix, 3 for one camera "
                              "per time)")
     budget.add_argument("--iters", type=int, help="run this many iterations instead of a time budget (the "
                                                   "preset's schedules scale with it; runs are then reproducible)")

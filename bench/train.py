@@ -7,8 +7,8 @@ score the held-out views beside two trivial baselines and the sample's exact mod
 Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the whole run, set-up included), `iters`,
 `n_gaussians`, `test_psnr`, `test_ssim`, `test_psnr_on_black` (the same model and test views, both composited on
 black instead of the dataset's white: a dark silhouette on white costs far more), `upper_bound_psnr` (the exact
-model, `splat4d sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest axis ratio is above 10), the decisions of
-the recipe, what the alpha-agreement test said, and the baselines' PSNR on the same test views:
+model, `splat4d sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest
+axis ratio is above 10), the decisions of the recipe, what the alpha-agreement test said, and the baselines' PSNR on the same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.

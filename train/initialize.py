@@ -209,8 +209,8 @@ def frustum_init(n: int, ds: Dataset, centre: np.ndarray, generator: torch.Gener
 
 
 def point_cloud_init(path, n: int, ds: Dataset, generator: torch.Generator
-                     ) -> tuple[torch.Tensor, torch.Tensor | None, str]:
-    """(points, RGB or None, note) from a dataset's point cloud (`splat4d.train.points`): at most `n` of its points
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(points, RGB or None) from a dataset's point cloud (`splat4d.train.points`): at most `n` of its points
     (a random subset when it has more), dropped when fewer than half lie in any training view (another frame)."""
     from .points import in_view_share, read_point_cloud
 
@@ -222,5 +222,4 @@ def point_cloud_init(path, n: int, ds: Dataset, generator: torch.Generator
     if len(xyz) > n:
         idx = torch.randperm(len(xyz), generator=generator)[:n].numpy()
         xyz, rgb = xyz[idx], None if rgb is None else rgb[idx]
-    note = f"{len(xyz):,} points of {path.name}"
-    return torch.from_numpy(xyz).float(), None if rgb is None else torch.from_numpy(rgb).float(), note
+    return torch.from_numpy(xyz).float(), None if rgb is None else torch.from_numpy(rgb).float()

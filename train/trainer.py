@@ -119,7 +119,6 @@ class Trainer:
         self.step_seconds = 0.0  # running mean of a step's duration
         self.elapsed_before = 0.0  # seconds spent by the run before it was resumed
         self.step = 0
-        self._last_vstep = 0.0
         self.losses: list[float] = []
         self._views_at: dict[int, list[View]] = {1: dataset.train}
         self._conf = self._confidence() if config.confidence else {}
@@ -147,7 +146,7 @@ class Trainer:
         elif cfg.init == "points":
             if not cfg.init_points:
                 raise Splat4DError("init 'points' needs a point cloud file (--init-points FILE)")
-            points, rgb, _ = point_cloud_init(Path(cfg.init_points), cfg.num_gaussians, self.ds, self.generator)
+            points, rgb = point_cloud_init(Path(cfg.init_points), cfg.num_gaussians, self.ds, self.generator)
         else:
             centre = look_at_centre(self.ds)
             if cfg.init == "frustum":
@@ -240,15 +239,15 @@ class Trainer:
             self._views_at[factor] = [downscale_view(v, factor) for v in self.ds.train]
         return self._views_at[factor]
 
-    def _resolution_factor(self) -> int:
+    def _resolution_factor(self, vstep: float) -> int:
         for frac, k in self.cfg.resolution_ramp:
-            if self.vstep() < frac * self.cfg.iters:
+            if vstep < frac * self.cfg.iters:
                 return int(k)
         return 1
 
-    def _pick(self) -> int:
-        """Index of the next training image (uniform, from the run's own generator)."""
-        static = self.vstep() < self.cfg.static_iters
+    def _pick(self, static: bool = False) -> int:
+        """Index of the next training image (uniform, from the run's own generator; the first frame's only while
+        `static`)."""
         if static:
             first = min(v.frame_id for v in self.ds.train)
             pool = [i for i, v in enumerate(self.ds.train) if v.frame_id == first]
@@ -279,18 +278,19 @@ class Trainer:
 
     def train_step(self) -> tuple[float, float]:
         cfg = self.cfg
+        v = self.vstep()  # one schedule position for the whole step
         for g in self.optimizer.param_groups:
             if g["name"] == "means":
-                g["lr"] = mean_lr(self.vstep(), cfg, self.extent)
-        deg, deg_t = active_sh(self.vstep(), cfg)
-        factor = self._resolution_factor()
-        static = self.vstep() < cfg.static_iters
+                g["lr"] = mean_lr(v, cfg, self.extent)
+        deg, deg_t = active_sh(v, cfg)
+        factor = self._resolution_factor(v)
+        static = v < cfg.static_iters
         loss_sum, psnr_sum = 0.0, 0.0
         model = self.model()  # the parameters only change at the optimizer step, after the batch
         with torch.no_grad():
             var_t = model.covariance_4d()[:, 3, 3]
         for _ in range(cfg.batch_size):
-            i = self._pick()
+            i = self._pick(static)
             view = self._views(factor)[i]
             target, mask = view_target(view, self.ds.background, self.device)
             shown = alive_at(view.time, model.t_means.detach(), var_t)

@@ -21,13 +21,13 @@ from pathlib import Path
 
 import torch
 
-from splat4d import quaternion
-from splat4d.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
-from splat4d.export import frame_times, iter_frames
-from splat4d.export.mesh import MeshOptions, write_mesh_sequence
-from splat4d.export.ply import write_ply_sequence
-from splat4d.export.usd import UsdOptions, write_usd
-from splat4d.model import Gaussians4D
+from splatreel import quaternion
+from splatreel.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.export import frame_times, iter_frames
+from splatreel.export.mesh import MeshOptions, write_mesh_sequence
+from splatreel.export.ply import write_ply_sequence
+from splatreel.export.usd import UsdOptions, write_usd
+from splatreel.model import Gaussians4D
 
 TARGET_SPLATS_INSTANCER_S = 30.0
 
@@ -58,7 +58,7 @@ def _warm_up() -> None:
     """Pay one-time costs (imports, USD plugin loading, numba compilation, torch's first ops) before timing."""
     small = bench_model(200, seed=1)
     two = frame_times(small.time_range, 2)
-    with tempfile.TemporaryDirectory(prefix="splat4d-bench-warm-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="splatreel-bench-warm-") as tmp:
         write_usd(small, Path(tmp) / "w.usdc", two)
         write_mesh_sequence(small, Path(tmp) / "m", two, MeshOptions(resolution=16))
         write_ply_sequence(small, Path(tmp) / "p", two)
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     _warm_up()
     skip = set(filter(None, args.skip.split(",")))
     rows = []
-    with tempfile.TemporaryDirectory(prefix="splat4d-bench-export-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="splatreel-bench-export-") as tmp:
         tmp = Path(tmp)
 
         def run(name, fn):

@@ -1,4 +1,4 @@
-"""Benchmark of the CPU rasterizer (`splat4d.train.rasterize`) against the dense pure-torch reference.
+"""Benchmark of the CPU rasterizer (`splatreel.train.rasterize`) against the dense pure-torch reference.
 
     python bench/rasterize.py --json OUT.json
 
@@ -38,10 +38,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 import torch  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from splat4d.cameras import Camera, look_at  # noqa: E402
-from splat4d.covariance import covariance_3d  # noqa: E402
-from splat4d.model import Gaussians3D  # noqa: E402
-from splat4d.train.rasterize import rasterize  # noqa: E402
+from splatreel.cameras import Camera, look_at  # noqa: E402
+from splatreel.covariance import covariance_3d  # noqa: E402
+from splatreel.model import Gaussians3D  # noqa: E402
+from splatreel.train.rasterize import rasterize  # noqa: E402
 
 
 def make_scene(n: int, sh_degree: int, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -113,8 +113,8 @@ def time_reference(scene, cam, sh_degree: int, repeats: int, chunk_elements: flo
 def compile_times() -> dict[str, float]:
     """Seconds for import + first forward/backward with an empty numba cache (compiles), then with it filled."""
     code = ("import time; t0 = time.perf_counter(); import torch; t1 = time.perf_counter()\n"
-            "from splat4d.train.rasterize import rasterize\n"
-            "from splat4d.model import Gaussians3D; from splat4d.cameras import look_at\n"
+            "from splatreel.train.rasterize import rasterize\n"
+            "from splatreel.model import Gaussians3D; from splatreel.cameras import look_at\n"
             "g = Gaussians3D(means=torch.zeros(1, 3, requires_grad=True), covariances=0.01 * torch.eye(3)[None],"
             " opacities=torch.full((1,), 0.5), sh=torch.zeros(1, 1, 3), visible=torch.ones(1, dtype=torch.bool),"
             " sh_degree=0)\n"
@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             bar.update()
 
     compile_info = {} if args.no_compile else compile_times()
-    print(f"\nsplat4d rasterizer, {torch.get_num_threads()} torch threads, SH degree {args.sh_degree} "
+    print(f"\nsplatreel rasterizer, {torch.get_num_threads()} torch threads, SH degree {args.sh_degree} "
           f"(median ms; reference = dense torch oracle on the case shown)")
     header = (f"{'N':>8} {'size':>5} {'fwd':>8} {'fwd+bwd':>9} {'(min)':>7} | {'reference case':>28} "
               f"{'ref fwd+bwd':>12} {'ours':>8} {'speed-up':>9} {'load':>5}")

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from splat4d.covariance import decompose_covariance_4d
-from splat4d.samples import SAMPLES, DatasetConfig, MeshRenderer, build_model, write_dataset
-from splat4d.samples.dataset import write_png
+from splatreel.covariance import decompose_covariance_4d
+from splatreel.samples import SAMPLES, DatasetConfig, MeshRenderer, build_model, write_dataset
+from splatreel.samples.dataset import write_png
 
 TARGET_DATASET_S = 30.0
 

@@ -7,7 +7,7 @@ score the held-out views beside two trivial baselines and the sample's exact mod
 Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the whole run, set-up included), `iters`,
 `n_gaussians`, `test_psnr`, `test_ssim`, `test_psnr_on_black` (the same model and test views, both composited on
 black instead of the dataset's white: a dark silhouette on white costs far more), `upper_bound_psnr` (the exact
-model, `splat4d sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest
+model, `splatreel sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest
 axis ratio is above 10), the decisions of the recipe, what the alpha-agreement test said, and the baselines' PSNR on the same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
@@ -34,10 +34,10 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
     after the model was saved and scored: the timed steps update it."""
     import torch
 
-    from splat4d.train.evaluate import view_target
-    from splat4d.train.losses import dssim, l1
-    from splat4d.train.rasterize import rasterize
-    from splat4d.train.trainer import alive_at
+    from splatreel.train.evaluate import view_target
+    from splatreel.train.losses import dssim, l1
+    from splatreel.train.rasterize import rasterize
+    from splatreel.train.trainer import alive_at
 
     cfg, ds = trainer.cfg, trainer.ds
     phases = dict.fromkeys(("slice", "raster forward", "losses", "backward", "adam"), 0.0)
@@ -74,13 +74,13 @@ def needle_share(trainer, ratio: float = 10.0) -> float:
 
 def upper_bound(name: str, ds) -> float | None:
     """Test PSNR of the sample's exact model (None when it cannot be built)."""
-    from splat4d.errors import Splat4DError
-    from splat4d.samples import build_model
-    from splat4d.train.evaluate import evaluate
+    from splatreel.errors import SplatreelError
+    from splatreel.samples import build_model
+    from splatreel.train.evaluate import evaluate
 
     try:
         model = build_model(name)
-    except Splat4DError:
+    except SplatreelError:
         return None
     return evaluate(model, ds.test, ds.background, progress=False)["psnr"]
 
@@ -96,13 +96,13 @@ def main() -> None:
 
     import torch
 
-    from splat4d.samples import SAMPLES, SCENES
-    from splat4d.samples.dataset import write_dataset
-    from splat4d.train.alpha_conflicts import describe
-    from splat4d.train.data import load_dataset
-    from splat4d.train.evaluate import baselines, evaluate
-    from splat4d.train.recipe import auto_recipe, read_traits
-    from splat4d.train.trainer import Trainer
+    from splatreel.samples import SAMPLES, SCENES
+    from splatreel.samples.dataset import write_dataset
+    from splatreel.train.alpha_conflicts import describe
+    from splatreel.train.data import load_dataset
+    from splatreel.train.evaluate import baselines, evaluate
+    from splatreel.train.recipe import auto_recipe, read_traits
+    from splatreel.train.trainer import Trainer
 
     names = args.samples.split(",") if args.samples else [*SAMPLES, *SCENES]
     rows = []

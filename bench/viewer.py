@@ -2,7 +2,7 @@
 
     python bench/viewer.py [--json OUT.json] [--cases sample,200k,1m] [--sizes 512x512,1280x720] [--frames N]
 
-Cases: the bundled sample (``splat4d.samples.trained_checkpoint("spinner")``, 50,000 trained Gaussians) and
+Cases: the bundled sample (``splatreel.samples.trained_checkpoint("spinner")``, 50,000 trained Gaussians) and
 synthetic native 4D models of 200k and 1M Gaussians (SH degree 3, moving and fading; points in a ball of radius
 0.5, std-devs 0.01 x e^(+-0.5), camera at distance 1.5 with a 60 degree field of view). Every measured frame has a new camera (2 degrees further round) and
 a new model time, so each one re-sorts, as a playing, orbiting viewer does.
@@ -17,7 +17,7 @@ see the same load on this shared machine: the per-frame ratio is the comparable 
 by 2x and more between runs.
 
 ``--max-std-dev`` / ``--max-screen-radius`` measure the viewer with those footprint caps (the performance guards of
-`splat4d.viewer.sorting.Footprint`; recorded in each row), against the uncapped rasterizer as always.
+`splatreel.viewer.sorting.Footprint`; recorded in each row), against the uncapped rasterizer as always.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import time
 
 
 def synthetic(n: int):
-    from splat4d.viewer.synthetic import synthetic_model
+    from splatreel.viewer.synthetic import synthetic_model
 
     return synthetic_model(n, seed=0, radius=0.5, scale=0.01, speed=0.2, lifetime=0.35, sh_degree=3)
 
@@ -38,9 +38,9 @@ def synthetic(n: int):
 def build_case(name: str):
     """(model, orbit distance, fov, up) for a case name."""
     if name == "sample":
-        from splat4d.checkpoint import load_checkpoint
-        from splat4d.samples import trained_checkpoint
-        from splat4d.viewer.trajectory import frame_model
+        from splatreel.checkpoint import load_checkpoint
+        from splatreel.samples import trained_checkpoint
+        from splatreel.viewer.trajectory import frame_model
 
         model = load_checkpoint(trained_checkpoint("spinner")).model
         framing = frame_model(model)
@@ -52,9 +52,9 @@ def build_case(name: str):
 def measure(model, center, distance, fov, size, frames: int, composite: str, caps: dict) -> dict:
     import torch
 
-    from splat4d.cameras import orbit
-    from splat4d.train.rasterize import rasterize
-    from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
+    from splatreel.cameras import orbit
+    from splatreel.train.rasterize import rasterize
+    from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
 
     w, h = size
     t0, t1 = model.time_range
@@ -96,14 +96,14 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=None, help="frames per case, each drawn by GL and by the "
                                                               "rasterizer (default 15 / 9 / 5 by size of model)")
     ap.add_argument("--composite", default="front-to-back", choices=("front-to-back", "back-to-front"))
-    from splat4d.viewer.options import add_footprint_args, parse_size
+    from splatreel.viewer.options import add_footprint_args, parse_size
 
     add_footprint_args(ap)  # the GL side only: the rasterizer draws every splat out to its cut-off
     args = ap.parse_args()
     caps = {k: getattr(args, k) for k in ("max_std_dev", "max_screen_radius", "near_plane", "temporal_fade")
             if getattr(args, k) != ap.get_default(k)}
 
-    from splat4d.viewer.renderer import headless_context
+    from splatreel.viewer.renderer import headless_context
 
     ctx = headless_context()
     device = f"{ctx.info['GL_RENDERER']} / {ctx.info['GL_VERSION']}"

@@ -1,8 +1,8 @@
 """Exporters: OpenUSD, per-frame meshes, per-frame 3DGS PLY.
 
-Every exporter takes any model (`Gaussians4D`, `KeyframedGaussians`, whatever `splat4d.formats.load_model` returns)
+Every exporter takes any model (`Gaussians4D`, `KeyframedGaussians`, whatever `splatreel.formats.load_model` returns)
 and only calls ``model.slice(t)`` at the frame times from `frame_times`. Importing this package registers the
-built-in formats; `exporters()` lists them (the ``splat4d export`` choices come from it).
+built-in formats; `exporters()` lists them (the ``splatreel export`` choices come from it).
 """
 
 from .base import (ExportError, Exporter, SplatFrame, exporters, frame_times, iter_frames, register_exporter,

@@ -24,13 +24,13 @@ from typing import Callable, Iterable, Iterator, Sequence
 import numpy as np
 import torch
 
-from splat4d.constants import RADIUS_SIGMAS
-from splat4d.covariance import decompose_covariance_3d
-from splat4d.errors import ModelError, Splat4DError
-from splat4d.sh import SH_C0, sh_to_rgb
+from splatreel.constants import RADIUS_SIGMAS
+from splatreel.covariance import decompose_covariance_3d
+from splatreel.errors import ModelError, SplatreelError
+from splatreel.sh import SH_C0, sh_to_rgb
 
 
-class ExportError(Splat4DError):
+class ExportError(SplatreelError):
     """Bad export arguments (frames, times, options) or an output that cannot be produced."""
 
 
@@ -234,10 +234,10 @@ def manifest(kind: str, times: Sequence[float], files: Sequence[str], fps: float
 
 @dataclass(frozen=True)
 class Exporter:
-    """One output format of ``splat4d export``.
+    """One output format of ``splatreel export``.
 
     Attributes:
-        name: the sub-subcommand (``splat4d export NAME``).
+        name: the sub-subcommand (``splatreel export NAME``).
         help: one line for --help.
         output: metavar of the output argument (``OUT.usd``, ``OUTDIR``).
         add_args: adds the format's own options to its argparse parser.
@@ -262,5 +262,5 @@ def register_exporter(exporter: Exporter) -> Exporter:
 
 
 def exporters() -> dict[str, Exporter]:
-    """Name -> `Exporter` of every registered format (importing `splat4d.export` registers the built-in ones)."""
+    """Name -> `Exporter` of every registered format (importing `splatreel.export` registers the built-in ones)."""
     return dict(_EXPORTERS)

@@ -19,7 +19,7 @@ so that surfaces do not jitter from re-quantisation.
 
 Output folder: ``mesh_%06d.{obj,ply,glb}`` per frame, ``mesh_sequence.usd`` (a ``UsdGeom.Mesh`` at /World/Mesh
 with time-sampled points, topology, vertex normals, vertex displayColor and extent; frame i = time code i, the
-stage metadata of `splat4d.export.usd`) and ``manifest.json``. Colour spaces: PLY/OBJ hold 8-bit (PLY) or float
+stage metadata of `splatreel.export.usd`) and ``manifest.json``. Colour spaces: PLY/OBJ hold 8-bit (PLY) or float
 (OBJ) sRGB-encoded colour; GLB ``COLOR_0`` and USD displayColor hold linear colour (their specs say linear).
 """
 
@@ -33,8 +33,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from splat4d.covariance import covariance_3d
-from splat4d.fileio import atomic_dir
+from splatreel.covariance import covariance_3d
+from splatreel.fileio import atomic_dir
 
 from .base import (ExportError, Exporter, SplatFrame, box_of, frame_file_name, iter_frames, manifest,
                    register_exporter, resolve_up_axis, srgb_to_linear)
@@ -326,7 +326,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
                         force: bool = False, progress: bool = False) -> list[Path]:
     """Write the per-frame meshes, ``mesh_sequence.usd`` (unless ``options.usd`` is off) and ``manifest.json``
     to `outdir`, which appears atomically. Returns the written paths."""
-    from splat4d.fileio import check_writable
+    from splatreel.fileio import check_writable
 
     outdir = check_writable(outdir, force)
     grid = sequence_grid(model, times, options.resolution, progress)

@@ -1,4 +1,4 @@
-"""Standard 3DGS PLY sequences: one file per frame, in the layout of `splat4d.ply_layout` (graphdeco-inria
+"""Standard 3DGS PLY sequences: one file per frame, in the layout of `splatreel.ply_layout` (graphdeco-inria
 ``GaussianModel.save_ply``: positions, zero normals, SH DC + channel-major rest, opacity logit, log scales,
 quaternion w first).
 
@@ -12,8 +12,8 @@ import argparse
 from pathlib import Path
 from typing import Sequence
 
-from splat4d.fileio import atomic_dir
-from splat4d.ply_layout import OPACITY_EPS, ply_bytes, splats_to_ply_records
+from splatreel.fileio import atomic_dir
+from splatreel.ply_layout import OPACITY_EPS, ply_bytes, splats_to_ply_records
 
 from .base import (Exporter, SplatFrame, frame_file_name, iter_frames, manifest, register_exporter,
                    resolve_up_axis)
@@ -24,7 +24,7 @@ def frame_ply_bytes(frame: SplatFrame, drop_invisible: bool = False) -> bytes:
     keep = frame.visible if drop_invisible else slice(None)
     records = splats_to_ply_records(frame.means[keep], frame.quats[keep], frame.scales[keep],
                                     frame.opacities[keep], frame.sh[keep])
-    return ply_bytes(records, [f"splat4d frame {frame.index} time {frame.time!r}"])
+    return ply_bytes(records, [f"splatreel frame {frame.index} time {frame.time!r}"])
 
 
 def write_ply_sequence(model, outdir: str | Path, times: Sequence[float], fps: float = 24.0,

@@ -10,7 +10,7 @@ Stage layout (``/World`` is the default prim)::
     /World/Looks/DisplayColor    UsdPreviewSurface reading displayColor / displayOpacity (instancer, points)
 
 Time: frame i is time code i (0 .. F-1); ``timeCodesPerSecond = framesPerSecond = --fps``; model time at time
-code i is ``customLayerData["splat4d"]["model_time_start"] + i * ["model_time_step"]``.
+code i is ``customLayerData["splatreel"]["model_time_start"] + i * ["model_time_step"]``.
 
 Every per-particle attribute is authored at every time code, with the same N and order at every sample
 (invisible Gaussians keep their slot with opacity 0), so a reader interpolating between samples blends the same
@@ -48,7 +48,7 @@ from typing import Sequence
 
 import numpy as np
 
-from splat4d.fileio import atomic_path
+from splatreel.fileio import atomic_path
 
 from .base import (ExportError, Exporter, SplatFrame, box_of, iter_frames, live_near, register_exporter,
                    resolve_up_axis, srgb_to_linear, time_step, with_neighbours)
@@ -145,9 +145,9 @@ def _author(attr, value, frame_index: int) -> None:
 
 def configure_stage(stage, num_frames: int, fps: float, up_axis: str = "Y", meters_per_unit: float = 1.0,
                     times: Sequence[float] | None = None) -> None:
-    """Stage metadata every splat4d USD file carries: /World as default prim, up axis, metersPerUnit,
+    """Stage metadata every splatreel USD file carries: /World as default prim, up axis, metersPerUnit,
     timeCodesPerSecond = framesPerSecond = fps, start/end time codes 0 .. F-1, and (given `times`) the time code
-    -> model time map in ``customLayerData["splat4d"]``."""
+    -> model time map in ``customLayerData["splatreel"]``."""
     from pxr import UsdGeom
 
     world = UsdGeom.Xform.Define(stage, ROOT).GetPrim()
@@ -159,7 +159,7 @@ def configure_stage(stage, num_frames: int, fps: float, up_axis: str = "Y", mete
     stage.SetStartTimeCode(0)
     stage.SetEndTimeCode(max(num_frames - 1, 0))
     if times is not None:
-        stage.GetRootLayer().customLayerData = {"splat4d": {
+        stage.GetRootLayer().customLayerData = {"splatreel": {
             "model_time_start": float(times[0]), "model_time_step": time_step(times), "num_frames": len(times),
             "frame_to_model_time": "model_time_start + timeCode * model_time_step"}}
 
@@ -308,7 +308,7 @@ def build_usd_stage(model, times: Sequence[float], options: UsdOptions = UsdOpti
 
     Args:
         model: any model with ``slice(t)`` (Gaussians4D, KeyframedGaussians).
-        times: ``[F]`` model times of the frames (`splat4d.export.frame_times`), uniformly spaced.
+        times: ``[F]`` model times of the frames (`splatreel.export.frame_times`), uniformly spaced.
         options: `UsdOptions`.
     Returns:
         ``pxr.Usd.Stage`` (anonymous root layer).
@@ -379,7 +379,7 @@ def save_stage(stage, path: str | Path, force: bool = False) -> Path:
 def write_usd(model, path: str | Path, times: Sequence[float], options: UsdOptions = UsdOptions(),
               force: bool = False, progress: bool = False) -> Path:
     """`build_usd_stage` then `save_stage`; refuses an existing `path` without `force` before any work."""
-    from splat4d.fileio import check_writable
+    from splatreel.fileio import check_writable
 
     path = check_writable(path, force)
     if path.suffix.lower() not in USD_SUFFIXES:

@@ -4,10 +4,10 @@ native 4D Gaussian models.
 Objects (`SAMPLES`: name -> description) are triangle meshes with per-vertex colours and a fixed topology over
 scene time t in [0, 1], inside a ball of radius 0.9 (Blender world, +z up). Scenes (`SCENES`) bring their own
 camera rig and config type: ``floor`` (`FloorConfig`) puts moving objects above a floor to the horizon, seen by 12
-fixed cameras one per time, with alpha marking what lies nearer than a far clip (`splat4d.samples.floor`); its
+fixed cameras one per time, with alpha marking what lies nearer than a far clip (`splatreel.samples.floor`); its
 model is built too: the objects from their motion plus a static floor where the rig sees it nearer than the clip.
 
->>> from splat4d.samples import SAMPLES, mesh_at, object_bounds, write_dataset, build_model
+>>> from splatreel.samples import SAMPLES, mesh_at, object_bounds, write_dataset, build_model
 >>> vertices, faces, colors = mesh_at("spinner", 0.5)       # (V, 3), (F, 3), (V, 3) albedo
 >>> lo, hi = object_bounds("wave", 0.25)                     # (3,), (3,)
 >>> write_dataset("morph", "data/morph")                     # 16 views x 16 frames at 256 px + 16 test images

@@ -5,7 +5,7 @@ Layout (``OUT/``)::
     transforms_train.json   transforms_test.json   transforms_val.json (= test, for D-NeRF's own loader)
     train/r_000.png ...     test/r_000.png ...      sample.json (provenance)
 
-Cameras (Blender world, +z up, `splat4d.cameras.orbit` with ``up='z'``: azimuth 0 on +x, increasing towards +y;
+Cameras (Blender world, +z up, `splatreel.cameras.orbit` with ``up='z'``: azimuth 0 on +x, increasing towards +y;
 positive elevation above) all look at the origin from `radius`, with square pixels and a centred principal point.
 
 * Training views form an image matrix: ``views`` azimuths ``360 * v / views`` at one `elevation`, times
@@ -33,10 +33,10 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from splat4d import __version__
-from splat4d.cameras import Camera, fov_from_focal, orbit
-from splat4d.errors import Splat4DError
-from splat4d.fileio import atomic_dir, check_writable
+from splatreel import __version__
+from splatreel.cameras import Camera, fov_from_focal, orbit
+from splatreel.errors import SplatreelError
+from splatreel.fileio import atomic_dir, check_writable
 
 from .objects import OBJECTS, SampleConfigError, SampleObject, get_sample
 from .render import AMBIENT, DIFFUSE, FAR, LIGHT_DIR, MeshRenderer
@@ -168,7 +168,7 @@ def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer
                 num_test: int) -> dict:
     """Provenance record written as ``sample.json`` (no timestamps: the dataset is byte-for-byte reproducible)."""
     return {
-        "generator": "splat4d sample", "generator_version": GENERATOR_VERSION, "splat4d_version": __version__,
+        "generator": "splatreel sample", "generator_version": GENERATOR_VERSION, "splatreel_version": __version__,
         "name": obj.name, "description": obj.description, "object": obj.params(),
         "render": {**asdict(config), "supersample": renderer.supersample, "msaa": renderer.msaa,
                    "light_dir": [_clean(x) for x in LIGHT_DIR], "ambient": AMBIENT,
@@ -197,7 +197,7 @@ def write_png(path: Path, rgba: np.ndarray) -> None:
     """Write ``(H, W, 4)`` uint8 RGBA as an 8-bit RGBA PNG."""
     bgra = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)
     if not cv2.imwrite(str(path), bgra, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]):
-        raise Splat4DError(f"{path}: could not write PNG")
+        raise SplatreelError(f"{path}: could not write PNG")
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -213,7 +213,7 @@ def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | Non
 
     Args:
         name: a key of `SAMPLES`, or of `SCENES` (a scene brings its own camera rig and config type, e.g.
-            ``floor`` takes a `FloorConfig`; see `splat4d.samples.floor`).
+            ``floor`` takes a `FloorConfig`; see `splatreel.samples.floor`).
         out: destination folder; refused if it exists unless `force`.
         config: cameras, times and image size (defaults: 16 views x 16 frames at 256 px, 16 test images).
         progress: show a tqdm bar over images.

@@ -38,9 +38,9 @@ only. Test image 0 is at t = 0 (D-NeRF's loader asserts that every split starts 
 test image j > 0 is camera (j + 6) mod 12 at the middle of a training interval (see `test_plan`). Test views are
 ordered by time.
 
-Model (`FloorScene.build_model`, what ``build_model("floor")`` and ``splat4d sample floor --model`` build): the
+Model (`FloorScene.build_model`, what ``build_model("floor")`` and ``splatreel sample floor --model`` build): the
 scene's native 4D Gaussians without training, for the training benchmark's upper bound. The moving objects are
-built as `splat4d.samples.gaussians` builds an object (one Gaussian per surface point and key-time segment, flat
+built as `splatreel.samples.gaussians` builds an object (one Gaussian per surface point and key-time segment, flat
 discs, velocity from the known motion), with thinner, fainter discs (`OBJECT_OPACITY`); the floor is static
 Gaussians (velocity 0, temporal std-dev 1000: they never fade), flat discs on a square grid in the floor plane
 with the floor mesh's lit vertex colours, laid only where most of the cameras that see a floor point see it nearer
@@ -64,9 +64,9 @@ from typing import ClassVar
 import numpy as np
 import torch
 
-from splat4d import __version__
-from splat4d.cameras import Camera, look_at_c2w, orbit
-from splat4d.model import Gaussians4D, static_gaussians4d
+from splatreel import __version__
+from splatreel.cameras import Camera, look_at_c2w, orbit
+from splatreel.model import Gaussians4D, static_gaussians4d
 
 from .dataset import GENERATOR_VERSION, View, _clean, write_layout
 from .gaussians import DISC_THICKNESS, motion_model
@@ -328,7 +328,7 @@ class FloorScene(SampleObject):
 # --- exact Gaussian model ---------------------------------------------------------------------------------------
 
 #: Gaussians per image pixel in `FloorScene.build_model` unless told (200k at 200 px), within the bounds below.
-#: The best count follows the image size: the rasterizer's fixed dilation in pixels (`splat4d.constants.EPS2D`)
+#: The best count follows the image size: the rasterizer's fixed dilation in pixels (`splatreel.constants.EPS2D`)
 #: makes denser discs spill further past the silhouettes in small images (64 px: 21.3 dB at 20k, 18.6 at 200k),
 #: while large images want more (400 px: 25.2 dB at 200k, 26.1 at 500k).
 GAUSSIANS_PER_PIXEL = 5
@@ -342,7 +342,7 @@ FLOOR_SHARE = 0.125
 FLOOR_DISC_SIZE = 0.45
 FLOOR_OPACITY = 0.95
 #: The objects' disc size and opacity (`motion_model`), below an object sample's (0.6, 0.95): the rasterizer adds
-#: 0.3 px^2 to every projected covariance (`splat4d.constants.EPS2D`), so dense opaque discs spill about a pixel
+#: 0.3 px^2 to every projected covariance (`splatreel.constants.EPS2D`), so dense opaque discs spill about a pixel
 #: past each silhouette, a dark halo on the white floor that dominates the error at 200 px. Thinner, fainter
 #: discs that overlap less halve it (test PSNR of the default model: 24.9 dB against 22.0 dB; SSIM 0.880 against
 #: 0.864), at the price of objects that look slightly see-through up close.
@@ -530,7 +530,7 @@ def sample_json(scene: FloorScene, config: FloorConfig, renderer: MeshRenderer, 
                 "azimuth": _clean(az), "position": [_clean(x) for x in cam.position]}
                for k, (el, az, cam) in enumerate(rig)]
     return {
-        "generator": "splat4d sample", "generator_version": GENERATOR_VERSION, "splat4d_version": __version__,
+        "generator": "splatreel sample", "generator_version": GENERATOR_VERSION, "splatreel_version": __version__,
         "name": scene.name, "description": scene.description, "scene": scene.params(),
         "render": {**asdict(config), "supersample": renderer.supersample, "msaa": renderer.msaa,
                    "light_dir": [_clean(x) for x in LIGHT_DIR], "ambient": AMBIENT, "diffuse": DIFFUSE,
@@ -549,6 +549,6 @@ def sample_json(scene: FloorScene, config: FloorConfig, renderer: MeshRenderer, 
     }
 
 
-#: Scene name -> the scene (defaults); `SCENES` is name -> one-line description (listed by ``splat4d sample``).
+#: Scene name -> the scene (defaults); `SCENES` is name -> one-line description (listed by ``splatreel sample``).
 SCENE_OBJECTS: dict[str, FloorScene] = {"floor": FloorScene()}
 SCENES: dict[str, str] = {name: type(s).description for name, s in SCENE_OBJECTS.items()}

@@ -20,7 +20,7 @@ known. Construction (`build_model`):
    * colour = the sample's LIT colour (the renderer's world-space Lambert + ambient, `render.shade`) at the
      segment's middle time, as SH DC (degree 0, no time terms); opacity 0.95.
 
-   The 4D parameters come from `splat4d.covariance.covariance_4d_from_motion` + `decompose_covariance_4d`
+   The 4D parameters come from `splatreel.covariance.covariance_4d_from_motion` + `decompose_covariance_4d`
    ('current' rotation convention), time_range (0, 1).
 
 The Gaussians are stored segment by segment (segment-major), so the model has exactly `num_gaussians` Gaussians
@@ -35,9 +35,9 @@ from typing import Callable
 import numpy as np
 import torch
 
-from splat4d import sh
-from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4d
-from splat4d.model import Gaussians4D
+from splatreel import sh
+from splatreel.covariance import covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.model import Gaussians4D
 
 from .geometry import Mesh, face_areas, farthest_point_subset, points_on_surface, sample_surface
 from .objects import OBJECTS, SampleConfigError, get_sample
@@ -77,7 +77,7 @@ def build_model(name: str, num_gaussians: int | None = None, frames: int | None 
 
     Args:
         name: a key of `SAMPLES`, or of `SCENES` (a scene builds its own model: ``floor`` adds a static floor to
-            its objects, see `splat4d.samples.floor`).
+            its objects, see `splatreel.samples.floor`).
         num_gaussians: number of Gaussians in the model (points x segments; see module doc); None: the sample's
             default (`DEFAULT_GAUSSIANS` for an object).
         frames: key times ``k / (frames - 1)`` (>= 2); more keys follow curved motion more closely. None: 16 for

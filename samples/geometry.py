@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import torch
 
-from splat4d import quaternion
+from splatreel import quaternion
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 Every object keeps its topology fixed (the same faces at every t), so a point with fixed barycentric coordinates on
 a face has a known trajectory, and stays inside a ball of radius 0.9 around the origin (Blender world, +z up).
-Colours are albedo; lighting is applied by the renderer (`splat4d.samples.render`). Times outside [0, 1] are
+Colours are albedo; lighting is applied by the renderer (`splatreel.samples.render`). Times outside [0, 1] are
 clamped: an object holds its first and last state.
 
 * ``spinner``: a rigid box with six distinctly coloured, framed faces and an off-centre disc on each (so every
@@ -11,7 +11,7 @@ clamped: an object holds its first and last state.
 * ``morph``: a beach-ball blob that squashes and stretches, grows three lobes and shifts its hue from red
   to blue.
 * ``texture``: a thick banner covered in fine, high-contrast texture (bars 2 to 6 px wide, a checker band and text,
-  as per-vertex colours on a dense mesh) that ripples, bows and twists (`splat4d.samples.texture`).
+  as per-vertex colours on a dense mesh) that ripples, bows and twists (`splatreel.samples.texture`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from splat4d.errors import Splat4DError
+from splatreel.errors import SplatreelError
 
 from .geometry import Mesh, axis_angle_matrix, grid_faces, hsv_to_rgb, mix, smoothstep, sphere_topology
 
@@ -31,11 +31,11 @@ from .geometry import Mesh, axis_angle_matrix, grid_faces, hsv_to_rgb, mix, smoo
 BOUNDING_RADIUS = 0.9
 
 
-class UnknownSampleError(Splat4DError, ValueError):
+class UnknownSampleError(SplatreelError, ValueError):
     """A sample name that is not in `SAMPLES`."""
 
 
-class SampleConfigError(Splat4DError, ValueError):
+class SampleConfigError(SplatreelError, ValueError):
     """Invalid sample settings (counts, sizes, angles)."""
 
 
@@ -241,7 +241,7 @@ from .texture import Texture  # noqa: E402
 
 #: Name -> object with default parameters.
 OBJECTS: dict[str, SampleObject] = {o.name: o for o in (Spinner(), Wave(), Morph(), Texture())}
-#: Name -> one-line description (what ``splat4d sample --list`` prints).
+#: Name -> one-line description (what ``splatreel sample --list`` prints).
 SAMPLES: dict[str, str] = {name: type(o).description for name, o in OBJECTS.items()}
 
 

@@ -16,8 +16,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from splat4d.cameras import Camera
-from splat4d.gl import create_headless_context, load_program, with_context
+from splatreel.cameras import Camera
+from splatreel.gl import create_headless_context, load_program, with_context
 
 from .geometry import Mesh
 

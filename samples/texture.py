@@ -112,7 +112,7 @@ _CREAM, _NAVY, _WHITE, _BLACK = (0.97, 0.95, 0.88), (0.05, 0.07, 0.22), (0.97, 0
 
 #: The front face (towards -y at rest), top to bottom; free height is spread evenly between and around bands.
 FRONT: tuple[Band, ...] = (
-    TextBand(0.13, ("SPLAT4D",), 0.105, 0.17, (0.75, 0.06, 0.06), _CREAM, cv2.FONT_HERSHEY_DUPLEX),
+    TextBand(0.13, ("SPLATREEL",), 0.105, 0.17, (0.75, 0.06, 0.06), _CREAM, cv2.FONT_HERSHEY_DUPLEX),
     BarsBand(0.22, BAR_WIDTHS, True, _BLACK, _WHITE),
     TextBand(0.27, ("FINE DETAIL", "0123456789", "QUICK BROWN"), 0.064, 0.25, _NAVY, _CREAM),
     CheckerBand(0.108, 0.027, (0.80, 0.10, 0.08), _WHITE),

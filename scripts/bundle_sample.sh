@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regenerate the trained checkpoint shipped in samples/ (splat4d.samples.trained_checkpoint): the 'spinner' sample's
+# Regenerate the trained checkpoint shipped in samples/ (splatreel.samples.trained_checkpoint): the 'spinner' sample's
 # default dataset, fitted with the default (auto) recipe at seed 0 for a fixed 500 iterations (so the run is
 # deterministic, not time-budgeted) and at most 100k Gaussians (a file under 10 MB). About 3-5 minutes on 2 cores.
 # The dataset is named relatively, so a rebuild on the same software gives the same bytes. The shipped file is
@@ -11,9 +11,9 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 TMP="$(mktemp -d)"
 trap 'rm -rf "$TMP"' EXIT
 cd "$TMP"
-splat4d sample spinner spinner
-splat4d train spinner --out spinner.safetensors --seed 0 --iters 500 --max-gaussians 100000
-splat4d eval spinner.safetensors spinner --json eval.json
+splatreel sample spinner spinner
+splatreel train spinner --out spinner.safetensors --seed 0 --iters 500 --max-gaussians 100000
+splatreel eval spinner.safetensors spinner --json eval.json
 python - <<'PY'
 import json, sys
 psnr = json.load(open("eval.json"))["psnr"]
@@ -22,4 +22,4 @@ if psnr < 23.0:
 PY
 mv spinner.safetensors "$ROOT/samples/spinner.safetensors"
 chmod 644 "$ROOT/samples/spinner.safetensors"
-splat4d info "$ROOT/samples/spinner.safetensors"
+splatreel info "$ROOT/samples/spinner.safetensors"

@@ -1,1 +1,1 @@
-"""GLSL programs (``*.glsl``), loaded with `splat4d.gl.load_program`."""
+"""GLSL programs (``*.glsl``), loaded with `splatreel.gl.load_program`."""

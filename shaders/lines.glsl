@@ -1,6 +1,6 @@
 #version 330 core
 // Coloured 3D line segments over the splats: the desktop app's camera path and camera frustums
-// (splat4d.viewer.overlay). Projected with the same pinhole convention as the splats (OpenCV camera axes, pixel
+// (splatreel.viewer.overlay). Projected with the same pinhole convention as the splats (OpenCV camera axes, pixel
 // intrinsics, y down), so a line through a Gaussian's mean passes through its splat's centre. Clip space is
 // (2 (fx x + cx z) / W - z, z - 2 (fy y + cy z) / H, z - 2 NEAR, z): w = z, and GL's clipping against
 // -w <= z_clip cuts segments exactly at the near plane z = NEAR, in front of the camera.

@@ -1,10 +1,10 @@
 #version 330 core
-// Lit, vertex-coloured triangle meshes for the procedural samples (splat4d.samples.render).
+// Lit, vertex-coloured triangle meshes for the procedural samples (splatreel.samples.render).
 //
 // Vertices arrive in world space (the samples are evaluated at each time on the CPU, so there is no model
 // matrix). Shading is Lambert + ambient with a light fixed in WORLD space, so a surface point looks the same from
 // every camera (view-independent, like SH degree 0): colour = albedo * (u_ambient + u_diffuse * max(n.l, 0)).
-// The same formula runs on the CPU in `splat4d.samples.render.shade` (used to colour Gaussians built from a
+// The same formula runs on the CPU in `splatreel.samples.render.shade` (used to colour Gaussians built from a
 // sample); keep the two in step.
 
 #if defined VERTEX_SHADER

@@ -3,16 +3,16 @@
 // corner). Drawn as GL_POINTS through an index buffer holding the back-to-front order, with rasterizer discard;
 // transform feedback writes one 48-byte record per drawn index, in that order, for splat_draw.glsl.
 //
-// Math (one place each, mirrored here): splat4d.covariance (conditional mean moving linearly in t, constant
-// conditional covariance, unnormalised temporal marginal and its TEMPORAL_CULL), splat4d.sh (SH degrees 0-3 with
+// Math (one place each, mirrored here): splatreel.covariance (conditional mean moving linearly in t, constant
+// conditional covariance, unnormalised temporal marginal and its TEMPORAL_CULL), splatreel.sh (SH degrees 0-3 with
 // cosine time terms, colour = max(SH + 0.5, 0), view direction from the sliced mean), and the trainer's EWA
 // projection (OpenCV camera, Jacobian at x/z, y/z clamped to the image plus (FRUSTUM_CLAMP - 1) tan_fov on each
 // side, + EPS2D px^2, near-plane cull), and its footprint rule: the tiles (TILE_SIZE) of the square box of radius
 // ceil(RADIUS_SIGMAS sqrt(lambda_max)) (EIGEN_FLOOR under the discriminant), intersected with the alpha >=
-// ALPHA_THRESHOLD ellipse, optionally capped (splat4d.viewer.sorting.Footprint).
+// ALPHA_THRESHOLD ellipse, optionally capped (splatreel.viewer.sorting.Footprint).
 //
-// Compile-time defines (splat4d.viewer.renderer): SH_DEGREE, SH_DEGREE_T, SH_TEXELS (RGBA texels per Gaussian),
-// SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE. Rendering constants come from splat4d.constants.
+// Compile-time defines (splatreel.viewer.renderer): SH_DEGREE, SH_DEGREE_T, SH_TEXELS (RGBA texels per Gaussian),
+// SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE. Rendering constants come from splatreel.constants.
 
 #if defined VERTEX_SHADER
 
@@ -31,11 +31,11 @@ uniform float u_duration;   // T = t1 - t0 (period scale of the colour's time te
 uniform float u_scale;      // splat scale (multiplies every std-dev)
 uniform vec2 u_max_radius;  // footprint caps: std-devs, pixels along the major axis (sorting.footprint_caps)
 uniform float u_near;       // near plane (camera depth; sorting.Footprint.near_plane, NEAR_PLANE by default)
-uniform bool u_smooth_fade; // temporal fade "smooth" (splat4d.covariance.temporal_factor), else "cut"
+uniform bool u_smooth_fade; // temporal fade "smooth" (splatreel.covariance.temporal_factor), else "cut"
 uniform int u_sh_degree;    // displayed SH degree (<= SH_DEGREE)
 uniform sampler2D u_sh;     // packed colour coefficients, SH_TEXELS RGBA texels per Gaussian
 uniform int u_value;        // what o_color.rgb holds: 0 the SH colour, 1 the depth z, 2 the speed |d mean / dt|,
-                            // 3 the visible time span (splat4d.covariance.visible_span), at most u_duration,
+                            // 3 the visible time span (splatreel.covariance.visible_span), at most u_duration,
                             // 4 the factor on the opacity at t (the temporal marginal, in (TEMPORAL_CULL, 1],
                             // faded to 0 at the cull with the smooth temporal fade)
 
@@ -61,7 +61,7 @@ void cull() {
     o_rect = vec4(0.0);
 }
 
-// Colour of this Gaussian seen along `dir` at tau = mu_t - t (splat4d.sh.collapse_time + eval_sh + sh_to_rgb).
+// Colour of this Gaussian seen along `dir` at tau = mu_t - t (splatreel.sh.collapse_time + eval_sh + sh_to_rgb).
 vec3 sh_color(vec3 dir, float tau) {
     float c[SH_TEXELS * 4];
     int base = gl_VertexID * SH_TEXELS;
@@ -114,11 +114,11 @@ vec3 sh_color(vec3 dir, float tau) {
 }
 
 void main() {
-    // --- the 4D Gaussian at time t (splat4d.covariance.condition_on_time / temporal_marginal) -----------------
+    // --- the 4D Gaussian at time t (splatreel.covariance.condition_on_time / temporal_marginal) -----------------
     float dt = u_time - a_mean_t.w;
     float marginal = exp(-dt * dt * a_motion.w);
     if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
-    // splat4d.covariance.temporal_factor: "smooth" fades the factor to 0 at the cull instead of cutting it
+    // splatreel.covariance.temporal_factor: "smooth" fades the factor to 0 at the cull instead of cutting it
     float factor = u_smooth_fade ? marginal * smoothstep(TEMPORAL_CULL, 2.0 * TEMPORAL_CULL, marginal) : marginal;
     float opacity = a_cov_b.z * factor;
     if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }

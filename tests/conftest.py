@@ -6,7 +6,7 @@ import pytest
 @pytest.fixture(scope="module")
 def renderer():
     """One headless `MeshRenderer` (its GL context) per test module."""
-    from splat4d.samples import MeshRenderer
+    from splatreel.samples import MeshRenderer
 
     r = MeshRenderer()
     yield r

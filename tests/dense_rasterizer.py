@@ -1,4 +1,4 @@
-"""Slow, dense pure-PyTorch oracle of `splat4d.train.rasterize`: every Gaussian against every pixel.
+"""Slow, dense pure-PyTorch oracle of `splatreel.train.rasterize`: every Gaussian against every pixel.
 
 Written independently of `train/rasterize.py` (full-matrix EWA projection, a matrix inverse for the conic, the
 whole compositing as a cumulative product over a ``[pixels, N]`` tensor) and differentiable by plain autograd, in
@@ -25,10 +25,10 @@ import math
 import torch
 from torch import Tensor
 
-from splat4d.cameras import Camera, look_at
-from splat4d.covariance import covariance_3d
-from splat4d.model import Gaussians3D, Gaussians4D
-from splat4d.sh import num_sh_coeffs
+from splatreel.cameras import Camera, look_at
+from splatreel.covariance import covariance_3d
+from splatreel.model import Gaussians3D, Gaussians4D
+from splatreel.sh import num_sh_coeffs
 
 TILE = 16
 

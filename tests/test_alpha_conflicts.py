@@ -6,13 +6,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from splat4d.cli import main
-from splat4d.samples import FloorConfig, write_dataset
-from splat4d.samples.dataset import DatasetConfig
-from splat4d.train.alpha_conflicts import describe, find_alpha_conflicts
-from splat4d.train.config import preset
-from splat4d.train.data import load_dataset
-from splat4d.train.trainer import Trainer
+from splatreel.cli import main
+from splatreel.samples import FloorConfig, write_dataset
+from splatreel.samples.dataset import DatasetConfig
+from splatreel.train.alpha_conflicts import describe, find_alpha_conflicts
+from splatreel.train.config import preset
+from splatreel.train.data import load_dataset
+from splatreel.train.trainer import Trainer
 
 TOP = 11  # the floor sample's camera looking straight down
 
@@ -94,7 +94,7 @@ def test_cli_reports_it_and_records_it(floor, tmp_path, capsys):
     said = capsys.readouterr().out
     assert "one camera per time" in said and "alpha disagrees between views" in said
     assert "those pixels get no loss" in said
-    from splat4d.checkpoint import load_checkpoint
+    from splatreel.checkpoint import load_checkpoint
 
     training = load_checkpoint(out).training
     assert training["alpha_ignored"] is True and training["alpha_disagreement"] > 0.5
@@ -119,7 +119,7 @@ def test_default_recipe_beats_trivial_baselines_on_the_floor_sample(floor, tmp_p
     configuration: the default recipe, scaled to 400 steps and 20k Gaussians, must beat both trivial predictors
     of each test view (its camera's nearest training image, its camera's median image) by 3 dB. bench/train.py
     has the full-size figures."""
-    from splat4d.train.evaluate import baselines
+    from splatreel.train.evaluate import baselines
 
     ds = load_dataset(floor)
     cfg = dataclasses.replace(preset("efficient4d").scaled(400), num_gaussians=20_000)

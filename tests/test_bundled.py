@@ -1,5 +1,5 @@
 """The trained checkpoint shipped in ``samples/``: small, loadable, trained (it reproduces held-out views of its
-sample), and reachable from ``splat4d sample --trained`` and ``splat4d view`` with no model."""
+sample), and reachable from ``splatreel sample --trained`` and ``splatreel view`` with no model."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.checkpoint import load_checkpoint
-from splat4d.cli import main
-from splat4d.errors import Splat4DError
-from splat4d.model import Gaussians4D
-from splat4d.samples import TRAINED, DatasetConfig, MeshRenderer, get_sample, trained_checkpoint
-from splat4d.samples import dataset as sample_dataset
-from splat4d.train import losses
-from splat4d.viewer.renderer import RenderSettings, render_image
+from splatreel.checkpoint import load_checkpoint
+from splatreel.cli import main
+from splatreel.errors import SplatreelError
+from splatreel.model import Gaussians4D
+from splatreel.samples import TRAINED, DatasetConfig, MeshRenderer, get_sample, trained_checkpoint
+from splatreel.samples import dataset as sample_dataset
+from splatreel.train import losses
+from splatreel.viewer.renderer import RenderSettings, render_image
 
 #: Worst held-out view of the bundled model, scored on black (the model carries its alpha, so it can be composited
 #: on any backdrop; on its training white a dark silhouette costs ~6 dB more, bench/train.py); a broken checkpoint,
@@ -29,7 +29,7 @@ def bundled():
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
+    """`splatreel.train.losses.psnr` (the project's one PSNR) on numpy images."""
     return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
@@ -38,7 +38,7 @@ def test_bundled_checkpoint_is_small_and_says_how_it_was_made(bundled):
     assert path.stat().st_size <= 10 * 2 ** 20
     assert TRAINED == ("spinner",)
     assert isinstance(bundled.model, Gaussians4D) and 50_000 < len(bundled.model) <= 100_000  # densified, capped
-    assert bundled.provenance["tool"] == "splat4d train"
+    assert bundled.provenance["tool"] == "splatreel train"
     assert bundled.provenance["preset"] == "auto" and bundled.training["iteration"] == 500
     assert bundled.views and bundled.background == (1.0, 1.0, 1.0)  # its cameras and the D-NeRF white
 
@@ -78,5 +78,5 @@ def test_sample_cli_copies_the_bundled_checkpoint(tmp_path, capsys):
 
 
 def test_unknown_bundled_name_is_a_clear_error():
-    with pytest.raises(Splat4DError, match="bundled: spinner"):
+    with pytest.raises(SplatreelError, match="bundled: spinner"):
         trained_checkpoint("nope")

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from splat4d.cameras import (Camera, focal_from_fov, look_at, look_at_c2w, opencv_to_opengl, opengl_to_opencv,
+from splatreel.cameras import (Camera, focal_from_fov, look_at, look_at_c2w, opencv_to_opengl, opengl_to_opencv,
                              orbit, orbit_position)
-from splat4d.errors import CameraError
+from splatreel.errors import CameraError
 
 
 def random_pose(rng):

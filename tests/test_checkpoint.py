@@ -9,9 +9,9 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from splat4d.checkpoint import FORMAT_VERSION, checkpoint_bytes, load_checkpoint, save_checkpoint
-from splat4d.cli import main
-from splat4d.errors import CheckpointError, OutputExistsError
+from splatreel.checkpoint import FORMAT_VERSION, checkpoint_bytes, load_checkpoint, save_checkpoint
+from splatreel.cli import main
+from splatreel.errors import CheckpointError, OutputExistsError
 from test_model import keyframed, random_model
 
 
@@ -37,6 +37,27 @@ def test_keyframed_roundtrip(tmp_path):
         assert torch.equal(getattr(ck.model, name), v)
 
 
+def test_checkpoints_written_before_the_rename_still_open(tmp_path):
+    """Files from before the project was renamed carry the old metadata key and format name."""
+    from safetensors import safe_open
+    from safetensors.torch import save
+
+    model = random_model(50, "legacy", sh_degree=1, sh_degree_t=0)
+    new = tmp_path / "new.safetensors"
+    save_checkpoint(new, model, provenance={"tool": "test"})
+    with safe_open(str(new), "pt") as f:
+        meta = json.loads(f.metadata()["splatreel"])
+    assert meta["format"] == "splatreel"
+    meta["format"] = "splat4d"
+    old = tmp_path / "old.safetensors"
+    old.write_bytes(save({k: v.contiguous() for k, v in model.tensors().items()},
+                         metadata={"splat4d": json.dumps(meta)}))
+    ck = load_checkpoint(old)
+    assert ck.provenance == {"tool": "test"}
+    for k, v in model.tensors().items():
+        assert torch.equal(getattr(ck.model, k), v), k
+
+
 def test_existing_output_is_not_clobbered(tmp_path):
     path = tmp_path / "m.safetensors"
     path.write_bytes(b"precious")
@@ -50,7 +71,7 @@ def test_existing_output_is_not_clobbered(tmp_path):
 def test_atomic_outputs_get_the_usual_permissions(tmp_path):
     """Temp files are created private (0600 / 0700); once renamed into place an output must be as readable as a
     plainly written file, or the user's other tools and users cannot open it."""
-    from splat4d.fileio import atomic_dir
+    from splatreel.fileio import atomic_dir
 
     for umask in (0o022, 0o077):
         previous = os.umask(umask)
@@ -65,7 +86,7 @@ def test_atomic_outputs_get_the_usual_permissions(tmp_path):
 
 
 def write_raw(path, tensors, meta):
-    save_file(tensors, str(path), metadata={"splat4d": json.dumps(meta)})
+    save_file(tensors, str(path), metadata={"splatreel": json.dumps(meta)})
 
 
 def good(tmp_path):
@@ -82,7 +103,7 @@ def bad_files(tmp_path):
     files["corrupted"] = bytes(corrupt)
     files["garbage"] = b"this is not a checkpoint at all"
     ck = load_checkpoint(path)
-    meta = json.loads(__import__("safetensors").safe_open(str(path), "pt").metadata()["splat4d"])
+    meta = json.loads(__import__("safetensors").safe_open(str(path), "pt").metadata()["splatreel"])
     tensors = {k: v.contiguous() for k, v in ck.model.tensors().items()}
     write_raw(tmp_path / "v.safetensors", tensors, {**meta, "format_version": FORMAT_VERSION + 1})
     files["version"] = (tmp_path / "v.safetensors").read_bytes()
@@ -115,7 +136,7 @@ def test_bad_files_fail_with_one_clear_line(tmp_path, case, capsys):
 
 
 def test_missing_file_and_cli_exit_code(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "splat4d", "info", str(tmp_path / "nope.safetensors")],
+    proc = subprocess.run([sys.executable, "-m", "splatreel", "info", str(tmp_path / "nope.safetensors")],
                           capture_output=True, text=True)
     assert proc.returncode == 1
     assert proc.stderr.strip().count("\n") == 0 and "no such file" in proc.stderr
@@ -151,7 +172,7 @@ def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path, c
     record is a one-line error."""
     import numpy as np
 
-    from splat4d.cameras import DatasetView, orbit, views_from_json, views_to_json
+    from splatreel.cameras import DatasetView, orbit, views_from_json, views_to_json
 
     cams = [orbit(20, a, 3.0, fov_deg=40, width=64, height=48) for a in (0, 90)]
     views = [DatasetView(f"v{v}/f{f}", cams[v], f / 2) for f in range(3) for v in range(2)]
@@ -179,12 +200,12 @@ def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path, c
     # the model still loads (the cameras are optional extras), with a warning; asking for them is a one-line error
     with pytest.warns(UserWarning, match="malformed recorded cameras"):
         assert load_checkpoint(bad).views == []
-    proc = subprocess.run([sys.executable, "-m", "splat4d", "info", str(bad)], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "splatreel", "info", str(bad)], capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 0 and "gaussians" in proc.stdout
-    assert proc.stderr.startswith("splat4d info: warning:") and proc.stderr.count("\n") == 1  # one line
-    from splat4d.errors import CameraError
-    from splat4d.viewer.camera_path import dataset_views
+    assert proc.stderr.startswith("splatreel info: warning:") and proc.stderr.count("\n") == 1  # one line
+    from splatreel.errors import CameraError
+    from splatreel.viewer.camera_path import dataset_views
 
     with pytest.raises(CameraError, match="malformed recorded cameras") as err:
         dataset_views(bad)

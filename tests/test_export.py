@@ -2,7 +2,7 @@
 
 Models with known motion: a ball of Gaussians translating at a known velocity (with a few short-lived "flicker"
 Gaussians that are invisible at some frames) built here through `covariance_4d_from_motion` +
-`decompose_covariance_4d`, a keyframed model, and the procedural spinner of `splat4d.samples` (whose analytic
+`decompose_covariance_4d`, a keyframed model, and the procedural spinner of `splatreel.samples` (whose analytic
 bounds `object_bounds(name, t)` the meshes must follow).
 """
 
@@ -15,21 +15,21 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d import quaternion
-from splat4d.checkpoint import save_checkpoint
-from splat4d.cli import main
-from splat4d.constants import RADIUS_SIGMAS
-from splat4d.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
-from splat4d.errors import OutputExistsError
-from splat4d.export import ExportError, exporters, frame_times, iter_frames
-from splat4d.export.base import srgb_to_linear
-from splat4d.export.mesh import (Grid, MeshOptions, _density_at, density_field, grid_for_box, inverse_covariances,
+from splatreel import quaternion
+from splatreel.checkpoint import save_checkpoint
+from splatreel.cli import main
+from splatreel.constants import RADIUS_SIGMAS
+from splatreel.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.errors import OutputExistsError
+from splatreel.export import ExportError, exporters, frame_times, iter_frames
+from splatreel.export.base import srgb_to_linear
+from splatreel.export.mesh import (Grid, MeshOptions, _density_at, density_field, grid_for_box, inverse_covariances,
                                  write_mesh_sequence)
-from splat4d.export.ply import frame_ply_bytes, write_ply_sequence
-from splat4d.export.usd import PRIM_PATHS, UsdOptions, build_usd_stage, write_usd
-from splat4d.model import Gaussians4D, KeyframedGaussians
-from splat4d.ply_layout import ply_property_names, ply_records_to_splats, splats_to_ply_records
-from splat4d.sh import SH_C0
+from splatreel.export.ply import frame_ply_bytes, write_ply_sequence
+from splatreel.export.usd import PRIM_PATHS, UsdOptions, build_usd_stage, write_usd
+from splatreel.model import Gaussians4D, KeyframedGaussians
+from splatreel.ply_layout import ply_property_names, ply_records_to_splats, splats_to_ply_records
+from splatreel.sh import SH_C0
 
 VELOCITY = np.array([0.6, -0.2, 0.1])
 TIMES = frame_times((0.0, 1.0), 5)
@@ -382,7 +382,7 @@ def test_meshes_are_closed_outward_and_follow_the_motion(ball, mesh_dir):
 def test_meshes_of_a_procedural_sample_follow_its_known_motion(tmp_path):
     import trimesh
 
-    from splat4d.samples import build_model, object_bounds
+    from splatreel.samples import build_model, object_bounds
 
     # the spinner: a rigid box travelling along an arc while it spins, covered by flat surface Gaussians
     model = build_model("spinner", num_gaussians=6000, frames=5)
@@ -406,8 +406,8 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
     import trimesh
     from pxr import Usd, UsdVol
 
-    from splat4d.checkpoint import load_checkpoint
-    from splat4d.samples import object_bounds, trained_checkpoint
+    from splatreel.checkpoint import load_checkpoint
+    from splatreel.samples import object_bounds, trained_checkpoint
 
     ckpt = trained_checkpoint("spinner")
     model = load_checkpoint(ckpt).model
@@ -494,8 +494,8 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
         assert message in err and len(err.splitlines()) == 1, err
     assert main(["export", "usd", str(ckpt), str(out), "--frames", "2", "--force", "--quiet"]) == 0
     assert re.search(r"endTimeCode = 1\b", out.read_text())
-    # --crop exports only the Gaussians the box keeps (`splat4d.model.crop`); a box that misses is one line
-    from splat4d.model import CropBox, crop
+    # --crop exports only the Gaussians the box keeps (`splatreel.model.crop`); a box that misses is one line
+    from splatreel.model import CropBox, crop
 
     box = ["-0.2", "-1", "-1", "1", "1", "1"]
     kept = len(crop(ball, CropBox.of([float(x) for x in box])))

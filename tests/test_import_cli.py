@@ -1,4 +1,4 @@
-"""``splat4d convert`` and ``splat4d info`` on imported files; the shared import-options helper."""
+"""``splatreel convert`` and ``splatreel info`` on imported files; the shared import-options helper."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pickle
 import torch
 from test_import_helpers import capture_tuple, random_splats, write_splat_ply
 
-from splat4d.checkpoint import load_checkpoint
-from splat4d.cli import main
-from splat4d.importers import add_import_args, import_options
+from splatreel.checkpoint import load_checkpoint
+from splatreel.cli import main
+from splatreel.importers import add_import_args, import_options
 
 
 def test_convert_official_checkpoint_round_trip(tmp_path, capsys):
@@ -78,7 +78,7 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     for argv in cases:
         assert main(argv) == 1
         err = capsys.readouterr().err
-        assert err.startswith(f"splat4d {argv[0]}: error: ") and err.count("\n") == 1, err
+        assert err.startswith(f"splatreel {argv[0]}: error: ") and err.count("\n") == 1, err
     assert not marker.exists()
     assert not list(tmp_path.glob("*.safetensors"))
 
@@ -97,9 +97,9 @@ def test_import_options_helper_leaves_existing_flags_alone():
 def test_convert_crop_keeps_the_box_and_records_it(tmp_path, capsys):
     """``convert --crop`` writes only the Gaussians anchored in the box (negative corners parse as numbers) and
     records the box in the provenance; a box that misses the model is a one-line error that writes nothing."""
-    from splat4d.checkpoint import save_checkpoint
-    from splat4d.model import CropBox, crop
-    from splat4d.viewer.synthetic import synthetic_model
+    from splatreel.checkpoint import save_checkpoint
+    from splatreel.model import CropBox, crop
+    from splatreel.viewer.synthetic import synthetic_model
 
     model = synthetic_model(500, seed=3, radius=1.0)
     src = save_checkpoint(tmp_path / "in.safetensors", model, provenance={"tool": "test"})

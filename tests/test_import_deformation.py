@@ -7,9 +7,9 @@ import pytest
 import torch
 from test_import_helpers import deformation_state_dict, random_splats, write_deformation_folder
 
-from splat4d.errors import CheckpointError
-from splat4d.formats import load_model
-from splat4d.importers.hexplane import parse_state_dict
+from splatreel.errors import CheckpointError
+from splatreel.formats import load_model
+from splatreel.importers.hexplane import parse_state_dict
 
 AABB = ((2.0, 1.0, 1.5), (-1.0, -1.0, -0.5))  # row 0 = max, row 1 = min, as stored; not symmetric
 RES, T = 5, 5

@@ -12,8 +12,8 @@ import pytest
 import torch
 from test_import_helpers import C0, as_numpy1_pickle, capture_tuple, slice_reference
 
-from splat4d.errors import CheckpointError
-from splat4d.formats import load_model
+from splatreel.errors import CheckpointError
+from splatreel.formats import load_model
 
 Q_L = [0.9, 0.3, -0.2, 0.25]  # unnormalised on purpose: the file stores raw quaternions
 Q_R = [0.8, -0.1, 0.35, 0.4]
@@ -53,7 +53,7 @@ def test_conventions_give_different_motion(tmp_path):
 def test_main_checkpoint_defaults_are_assumed_and_reported(tmp_path, caplog):
     path = tmp_path / "chkpnt30000.pth"
     torch.save((capture_tuple(n=6), 30000), path)
-    with caplog.at_level(logging.WARNING, logger="splat4d.importers"):
+    with caplog.at_level(logging.WARNING, logger="splatreel.importers"):
         ckpt = load_model(path)
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and "\n" not in lines[0]
@@ -85,7 +85,7 @@ def test_given_options_are_not_assumed_and_folder_picks_latest(tmp_path, caplog)
         torch.save((capture_tuple(n=3, seed=it), it), tmp_path / f"chkpnt{it}.pth")
     torch.save((capture_tuple(n=3), 999), tmp_path / "chkpnt_best.pth")
     (tmp_path / "cfg_args").write_text("Namespace(sh_degree=3, white_background=True, source_path='/data/lego')")
-    with caplog.at_level(logging.WARNING, logger="splat4d.importers"):
+    with caplog.at_level(logging.WARNING, logger="splatreel.importers"):
         ckpt = load_model(tmp_path, convention="legacy", time_range=(0, 10))
     assert ckpt.provenance["iteration"] == 30000
     assert ckpt.provenance["assumed"] == [] and not caplog.records
@@ -220,7 +220,7 @@ def test_3d_capture_and_loaded_pth_dict(tmp_path):
 def test_env_map_is_dropped_with_a_warning(tmp_path, caplog):
     path = tmp_path / "chkpnt1.pth"
     torch.save((capture_tuple(n=2, env_map=torch.nn.Parameter(torch.rand(3, 8, 8))), 1), path)
-    with caplog.at_level(logging.WARNING, logger="splat4d.importers"):
+    with caplog.at_level(logging.WARNING, logger="splatreel.importers"):
         ckpt = load_model(path, convention="current", time_range=(0, 10), background=(0, 0, 0))
     assert "environment map [3, 8, 8] dropped" in ckpt.provenance["warnings"][0]
     assert [r.getMessage().count("environment map") for r in caplog.records] == [1]

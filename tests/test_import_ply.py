@@ -9,8 +9,8 @@ import pytest
 import torch
 from test_import_helpers import random_splats, rotation_3d_reference, write_splat_ply
 
-from splat4d.errors import CheckpointError
-from splat4d.formats import load_model
+from splatreel.errors import CheckpointError
+from splatreel.formats import load_model
 
 
 def _sigmoid(x):
@@ -123,10 +123,10 @@ def test_sequence_times_from_manifest(tmp_path):
     torch.testing.assert_close(load_model(tmp_path, time_range=(0, 1)).model.times, torch.tensor([0.0, 0.5, 1.0]))
 
 
-def test_round_trip_through_splat4d_export_ply(tmp_path):
-    """`splat4d export ply` frames read back as keyframes that match the model at those times."""
-    from splat4d.export.ply import write_ply_sequence
-    from splat4d.model import static_gaussians4d
+def test_round_trip_through_splatreel_export_ply(tmp_path):
+    """`splatreel export ply` frames read back as keyframes that match the model at those times."""
+    from splatreel.export.ply import write_ply_sequence
+    from splatreel.model import static_gaussians4d
 
     s = random_splats(6, 0, seed=4)
     model = static_gaussians4d(torch.tensor(s["means"], dtype=torch.float32),
@@ -157,8 +157,8 @@ def test_empty_ply_reads_as_an_empty_model(tmp_path, degree):
 
 def test_a_frame_with_nothing_visible_exports_as_an_empty_ply(tmp_path):
     """--drop-invisible at a time when every Gaussian has faded out: an empty file, not a crash."""
-    from splat4d.export.ply import write_ply_sequence
-    from splat4d.model import static_gaussians4d
+    from splatreel.export.ply import write_ply_sequence
+    from splatreel.model import static_gaussians4d
 
     s = random_splats(4, 1, seed=5)
     model = static_gaussians4d(torch.tensor(s["means"], dtype=torch.float32),

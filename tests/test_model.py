@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d import covariance, quaternion
-from splat4d.constants import TEMPORAL_CULL
-from splat4d.errors import ModelError
-from splat4d.model import Gaussians4D, KeyframedGaussians, model_bounds, static_gaussians4d
+from splatreel import covariance, quaternion
+from splatreel.constants import TEMPORAL_CULL
+from splatreel.errors import ModelError
+from splatreel.model import Gaussians4D, KeyframedGaussians, model_bounds, static_gaussians4d
 
 
 def hamilton(a, b):
@@ -197,7 +197,7 @@ def test_crop_keeps_the_gaussians_anchored_in_the_box_and_slices_like_the_whole(
     """A native model's anchor is its spatial mean (the position at mu_t); a keyframed one's is its mean at the
     key where it is most opaque. The cropped model is the same Gaussians, so every slice is the whole model's
     slice restricted to them, at every time."""
-    from splat4d.model import CropBox, crop
+    from splatreel.model import CropBox, crop
 
     model = random_model(300, "current")
     box = CropBox((-0.5, -1.0, -0.8), (1.0, 0.6, 0.9))
@@ -230,7 +230,7 @@ def test_crop_keeps_the_gaussians_anchored_in_the_box_and_slices_like_the_whole(
     ([0, 0, 0, float("nan"), 1, 1], "finite"),
 ])
 def test_crop_box_errors(values, message):
-    from splat4d.model import CropBox
+    from splatreel.model import CropBox
 
     with pytest.raises(ModelError, match=message):
         CropBox.of(values)

@@ -1,4 +1,4 @@
-"""Tests of the differentiable rasterizer (`splat4d.train.rasterize`) against the dense pure-torch oracle."""
+"""Tests of the differentiable rasterizer (`splatreel.train.rasterize`) against the dense pure-torch oracle."""
 
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ import torch
 sys.path.insert(0, os.path.dirname(__file__))
 from dense_rasterizer import camera, dense_render, gaussians3d, model4d, scene3d  # noqa: E402
 
-from splat4d.cameras import Camera  # noqa: E402
-from splat4d.errors import CameraError, ModelError, Splat4DError  # noqa: E402
-from splat4d.model import Gaussians3D  # noqa: E402
-from splat4d.train.rasterize import RenderOutput, rasterize  # noqa: E402
+from splatreel.cameras import Camera  # noqa: E402
+from splatreel.errors import CameraError, ModelError, SplatreelError  # noqa: E402
+from splatreel.model import Gaussians3D  # noqa: E402
+from splatreel.train.rasterize import RenderOutput, rasterize  # noqa: E402
 
-R = importlib.import_module("splat4d.train.rasterize")  # the module, even if the package re-exports `rasterize`
+R = importlib.import_module("splatreel.train.rasterize")  # the module, even if the package re-exports `rasterize`
 
 BG = (0.2, 0.3, 0.4)
 
@@ -193,7 +193,7 @@ def test_bad_input_gives_clear_errors():
         rasterize(gaussians3d(leaves), "not a camera")  # type: ignore[arg-type]
     with pytest.raises(CameraError):
         Camera(cam.c2w, cam.fx, cam.fy, cam.cx, cam.cy, 0, 20)  # zero-size images cannot be asked for
-    with pytest.raises(Splat4DError, match="background"):
+    with pytest.raises(SplatreelError, match="background"):
         rasterize(gaussians3d(leaves), cam, (0.0, math.nan, 0.0))
     with pytest.raises(ModelError, match="SH degree"):
         rasterize(gaussians3d(leaves, sh_degree=3), cam)
@@ -224,7 +224,7 @@ def test_camera_inside_the_gaussians_is_well_defined():
     means[1] = eye + torch.tensor([0.0, 0.2, 0.0])  # on the near plane
     scales = torch.exp(torch.randn(n, 3, generator=gen) * 0.5 + 0.5)
     quats = torch.randn(n, 4, generator=gen)
-    from splat4d.covariance import covariance_3d
+    from splatreel.covariance import covariance_3d
     leaves = {"means": means, "covariances": covariance_3d(scales, quats), "opacities": torch.full((n,), 0.5),
               "sh": torch.randn(n, 1, 3, generator=gen) * 0.3, "visible": torch.ones(n, dtype=torch.bool)}
     g = gaussians3d(leaves, sh_degree=0, requires_grad=True)
@@ -241,7 +241,7 @@ def test_camera_inside_the_gaussians_is_well_defined():
 
 # --- GPU path glue (gsplat), checked on the CPU ------------------------------------------------------------------
 def test_torch_binning_matches_kernel_binning():
-    from splat4d.train import _kernels as K
+    from splatreel.train import _kernels as K
 
     gen = torch.Generator().manual_seed(29)
     cam = camera(70, 45)
@@ -312,7 +312,7 @@ def test_gsplat_path_matches_cpu_path(monkeypatch):
 
 # --- numba cache location ----------------------------------------------------------------------------------------
 def _cache_dir_in_subprocess(env: dict) -> str:
-    code = "import os, splat4d.train._kernels as K; print(os.environ['NUMBA_CACHE_DIR'], K.CACHE_ENABLED)"
+    code = "import os, splatreel.train._kernels as K; print(os.environ['NUMBA_CACHE_DIR'], K.CACHE_ENABLED)"
     full_env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
     full_env.update(env)
     res = subprocess.run([sys.executable, "-c", code], env=full_env, capture_output=True, text=True, check=True)
@@ -321,9 +321,9 @@ def _cache_dir_in_subprocess(env: dict) -> str:
 
 def test_numba_cache_goes_to_a_writable_user_directory(tmp_path):
     out = _cache_dir_in_subprocess({"XDG_CACHE_HOME": str(tmp_path / "xdg")})
-    assert out == f"{tmp_path / 'xdg' / 'splat4d' / 'numba'} True"
+    assert out == f"{tmp_path / 'xdg' / 'splatreel' / 'numba'} True"
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
     out = _cache_dir_in_subprocess({"XDG_CACHE_HOME": str(blocker / "sub")})  # cannot be created
-    assert out.endswith(" True") and "splat4d-numba-" in out
+    assert out.endswith(" True") and "splatreel-numba-" in out
     assert _cache_dir_in_subprocess({"NUMBA_CACHE_DIR": str(tmp_path / "mine")}) == f"{tmp_path / 'mine'} True"

@@ -10,19 +10,19 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.checkpoint import load_checkpoint
-from splat4d.cli import main
-from splat4d.train.config import preset
-from splat4d.train.data import load_dataset
-from splat4d.train.points import find_point_cloud, read_point_cloud
-from splat4d.train.recipe import auto_recipe, read_traits
-from splat4d.train.trainer import Trainer
+from splatreel.checkpoint import load_checkpoint
+from splatreel.cli import main
+from splatreel.train.config import preset
+from splatreel.train.data import load_dataset
+from splatreel.train.points import find_point_cloud, read_point_cloud
+from splatreel.train.recipe import auto_recipe, read_traits
+from splatreel.train.trainer import Trainer
 
 
 @pytest.fixture(scope="module")
 def matrix(tmp_path_factory):
     """A bounded object as an image matrix: 4 views x 3 frames at 64 px, transparent around it."""
-    from splat4d.samples.dataset import DatasetConfig, write_dataset
+    from splatreel.samples.dataset import DatasetConfig, write_dataset
 
     root = tmp_path_factory.mktemp("data") / "spinner"
     write_dataset("spinner", root, DatasetConfig(views=4, frames=3, size=64, test_views=4))
@@ -32,7 +32,7 @@ def matrix(tmp_path_factory):
 @pytest.fixture(scope="module")
 def floor(tmp_path_factory):
     """An opaque floor to the horizon, one camera per time: 12 frames at 48 px."""
-    from splat4d.samples import FloorConfig, write_dataset
+    from splatreel.samples import FloorConfig, write_dataset
 
     root = tmp_path_factory.mktemp("data") / "floor"
     write_dataset("floor", root, FloorConfig(frames=12, size=48, test_views=2))
@@ -74,7 +74,7 @@ def test_data_without_alpha_is_an_open_scene(matrix):
 
 
 def test_large_images_train_coarse_to_fine():
-    from splat4d.train.recipe import DataTraits
+    from splatreel.train.recipe import DataTraits
 
     traits = DataTraits(images=256, frames=16, views_per_time=16, has_alpha=True, border_opaque=0.0,
                         width=256, height=256, point_cloud=None)

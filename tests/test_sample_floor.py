@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cli import main
-from splat4d.samples import (SAMPLES, SCENES, DatasetConfig, FloorConfig, SampleConfigError,
+from splatreel.cli import main
+from splatreel.samples import (SAMPLES, SCENES, DatasetConfig, FloorConfig, SampleConfigError,
                              build_model, get_sample, shade, write_dataset)
-from splat4d.samples import floor
-from splat4d.samples.floor import (FAR_CLIP, FLOOR_SHARE, NUM_CAMERAS, SIDE_DISTANCE, TOP_CAMERA, TOP_HEIGHT,
+from splatreel.samples import floor
+from splatreel.samples.floor import (FAR_CLIP, FLOOR_SHARE, NUM_CAMERAS, SIDE_DISTANCE, TOP_CAMERA, TOP_HEIGHT,
                                    FloorScene, concat_meshes, default_model_gaussians, rig_cameras)
-from splat4d.checkpoint import load_checkpoint
-from splat4d.train.data import load_dataset
-from splat4d.train.evaluate import evaluate
-from splat4d.train.rasterize import rasterize
+from splatreel.checkpoint import load_checkpoint
+from splatreel.train.data import load_dataset
+from splatreel.train.evaluate import evaluate
+from splatreel.train.rasterize import rasterize
 from test_samples import read_rgba
 
 SMALL = FloorConfig(frames=36, size=64, test_views=12)

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import Camera, look_at_c2w
-from splat4d.checkpoint import load_checkpoint
-from splat4d.cli import main
-from splat4d.samples import (BOUNDING_RADIUS, OBJECTS, SAMPLES, DatasetConfig, SampleConfigError, build_model,
+from splatreel.cameras import Camera, look_at_c2w
+from splatreel.checkpoint import load_checkpoint
+from splatreel.cli import main
+from splatreel.samples import (BOUNDING_RADIUS, OBJECTS, SAMPLES, DatasetConfig, SampleConfigError, build_model,
                              get_sample)
-from splat4d.samples.dataset import train_views
-from splat4d.samples.geometry import signed_volume
-from splat4d.samples.render import AMBIENT
-from splat4d.samples.texture import BAR_WIDTHS, FRONT, OVERSAMPLE, Texture, band_layout, draw_face
+from splatreel.samples.dataset import train_views
+from splatreel.samples.geometry import signed_volume
+from splatreel.samples.render import AMBIENT
+from splatreel.samples.texture import BAR_WIDTHS, FRONT, OVERSAMPLE, Texture, band_layout, draw_face
 
 TEXTURE = get_sample("texture")
 VIEWS = train_views(DatasetConfig())

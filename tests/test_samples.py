@@ -1,4 +1,4 @@
-"""Procedural samples: objects, GL rendering, the D-NeRF dataset writer, build_model and ``splat4d sample``."""
+"""Procedural samples: objects, GL rendering, the D-NeRF dataset writer, build_model and ``splatreel sample``."""
 
 from __future__ import annotations
 
@@ -12,16 +12,16 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from splat4d.cameras import Camera, look_at_c2w
-from splat4d.checkpoint import load_checkpoint
-from splat4d.cli import main
-from splat4d.errors import OutputExistsError
-from splat4d.samples import (BOUNDING_RADIUS, SAMPLES, SCENES, DatasetConfig, SampleConfigError,
+from splatreel.cameras import Camera, look_at_c2w
+from splatreel.checkpoint import load_checkpoint
+from splatreel.cli import main
+from splatreel.errors import OutputExistsError
+from splatreel.samples import (BOUNDING_RADIUS, SAMPLES, SCENES, DatasetConfig, SampleConfigError,
                              UnknownSampleError, build_model, get_sample, mesh_at, object_bounds, object_center,
                              write_dataset)
-from splat4d.samples.geometry import (Mesh, axis_angle_matrix, face_areas, points_on_surface, sample_surface,
+from splatreel.samples.geometry import (Mesh, axis_angle_matrix, face_areas, points_on_surface, sample_surface,
                                       signed_volume, vertex_normals)
-from splat4d.samples.render import LIGHT_DIR, resolve_straight_alpha
+from splatreel.samples.render import LIGHT_DIR, resolve_straight_alpha
 
 SMALL = DatasetConfig(views=4, frames=3, size=64, test_views=4)
 TIMES = np.linspace(0.0, 1.0, 11)
@@ -139,8 +139,8 @@ def test_render_is_antialiased_and_transparent(renderer):
 
 def test_mesh_renderer_and_viewer_share_a_process(renderer):
     """Each renderer makes its own context current for its GL work: interleaving them changes nothing."""
-    from splat4d.samples import build_model
-    from splat4d.viewer.renderer import render_image
+    from splatreel.samples import build_model
+    from splatreel.viewer.renderer import render_image
 
     cam = Camera.from_opengl(_gl_pose(), 48, 48, fov_x_deg=45.0)
     mesh = get_sample("spinner").mesh(0.3)
@@ -357,6 +357,6 @@ def test_cli_writes_dataset_and_model(tmp_path, capsys):
     assert len(load_split(out, "train")["frames"]) == 4 and len(load_split(out, "test")["frames"]) == 1
     loaded = load_checkpoint(ckpt)
     assert len(loaded.model) == 500
-    assert loaded.provenance["tool"] == "splat4d sample" and loaded.provenance["sample"] == "morph"
+    assert loaded.provenance["tool"] == "splatreel sample" and loaded.provenance["sample"] == "morph"
     assert main(args) == 1  # refuses to overwrite
     assert main(args + ["--force"]) == 0

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d import sh
+from splatreel import sh
 
 
 def closed_form(x, y, z):
-    """Real SH (3DGS signs) written from the textbook normalisations, independent of splat4d's constants."""
+    """Real SH (3DGS signs) written from the textbook normalisations, independent of splatreel's constants."""
     pi = math.pi
     c = lambda num, den: math.sqrt(num / (den * pi))  # noqa: E731
     return np.stack([

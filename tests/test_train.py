@@ -7,20 +7,20 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.checkpoint import load_checkpoint
-from splat4d.cli import main
-from splat4d.train import strategy
-from splat4d.train.confidence import confidence_maps
-from splat4d.train.config import DensifyConfig, preset
-from splat4d.train.data import load_dataset
-from splat4d.train.evaluate import evaluate
-from splat4d.train.trainer import Trainer, state_path
+from splatreel.checkpoint import load_checkpoint
+from splatreel.cli import main
+from splatreel.train import strategy
+from splatreel.train.confidence import confidence_maps
+from splatreel.train.config import DensifyConfig, preset
+from splatreel.train.data import load_dataset
+from splatreel.train.evaluate import evaluate
+from splatreel.train.trainer import Trainer, state_path
 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A procedural sample: 4 views x 3 frames at 64x64."""
-    from splat4d.samples.dataset import DatasetConfig, write_dataset
+    from splatreel.samples.dataset import DatasetConfig, write_dataset
 
     root = tmp_path_factory.mktemp("data") / "spinner"
     write_dataset("spinner", root, DatasetConfig(views=4, frames=3, size=64, test_views=4))
@@ -48,7 +48,7 @@ def test_training_lowers_loss_and_beats_initial_psnr(tiny, tmp_path):
     assert [v.time for v in ck.views] == [v.time for v in ds.train]
     assert [str(tiny / v.name) for v in ck.views] == [v.name for v in ds.train]  # names relative to the dataset
     np.testing.assert_allclose(ck.views[-1].camera.c2w, ds.train[-1].camera.c2w, atol=1e-12)
-    assert ck.training["iteration"] == 80 and ck.provenance["tool"] == "splat4d train"
+    assert ck.training["iteration"] == 80 and ck.provenance["tool"] == "splatreel train"
     assert ck.background == ds.background and state_path(res.out).exists()
 
 

@@ -12,9 +12,9 @@ import cv2
 import numpy as np
 import pytest
 
-from splat4d.cli import main
-from splat4d.errors import DatasetError
-from splat4d.train.data import detect_layout, load_dataset
+from splatreel.cli import main
+from splatreel.errors import DatasetError
+from splatreel.train.data import detect_layout, load_dataset
 
 P_ZUP = np.array([0.3, -0.2, 0.25])
 P_YUP = np.array([0.25, 0.3, -0.2])

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import orbit
-from splat4d.checkpoint import load_checkpoint, save_checkpoint
-from splat4d.samples import trained_checkpoint
-from splat4d.train import losses
-from splat4d.viewer.app import camera_from_json
-from splat4d.viewer.camera_path import CameraKey, CameraPath
-from splat4d.viewer.renderer import RenderSettings, render_image
-from splat4d.viewer.synthetic import synthetic_model
+from splatreel.cameras import orbit
+from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.samples import trained_checkpoint
+from splatreel.train import losses
+from splatreel.viewer.app import camera_from_json
+from splatreel.viewer.camera_path import CameraKey, CameraPath
+from splatreel.viewer.renderer import RenderSettings, render_image
+from splatreel.viewer.synthetic import synthetic_model
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def files(tmp_path_factory):
 
 def run_view(display: str, *args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "DISPLAY": display}
-    return subprocess.run([sys.executable, "-m", "splat4d", "view", *args], env=env, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "splatreel", "view", *args], env=env, capture_output=True, text=True,
                           timeout=120)
 
 
@@ -76,7 +76,7 @@ def view_report(display: str, ckpt, tmp_path, *args: str) -> dict:
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
+    """`splatreel.train.losses.psnr` (the project's one PSNR) on numpy images."""
     return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
@@ -173,10 +173,10 @@ def test_app_opens_the_bundled_sample_paused_in_depth_view_and_needs_a_display(d
     again = run_view(display, str(ckpt), "--exit-after", "1", "--screenshot", str(shot))
     assert again.returncode == 1 and "already exists" in again.stderr
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    headless = subprocess.run([sys.executable, "-m", "splat4d", "view", str(ckpt), "--exit-after", "1"], env=env,
+    headless = subprocess.run([sys.executable, "-m", "splatreel", "view", str(ckpt), "--exit-after", "1"], env=env,
                               capture_output=True, text=True, timeout=60)
     assert headless.returncode == 1
-    assert headless.stderr.strip().startswith("splat4d view: error:") and "Traceback" not in headless.stderr
+    assert headless.stderr.strip().startswith("splatreel view: error:") and "Traceback" not in headless.stderr
 
 
 def test_app_plays_a_camera_path_from_the_start_and_sees_the_view_move(display, files, tmp_path):
@@ -199,9 +199,9 @@ def test_app_crop_box_shows_what_save_edited_writes(display, files, tmp_path):
     """``view --crop`` starts with the crop box on: the window shows exactly the cropped model (the headless render
     of `crop(model, box)`), draws the box's 12 edges, and "Save edited" writes those Gaussians with the box in
     the provenance (refusing to overwrite unless asked)."""
-    from splat4d.model import CropBox, crop
-    from splat4d.viewer.app import AppOptions, ViewerApp
-    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.model import CropBox, crop
+    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
 
     root, model, ckpt = files
     box = [-0.4, -0.4, -0.4, 0.05, 0.4, 0.4]
@@ -243,9 +243,9 @@ def test_app_crop_box_shows_what_save_edited_writes(display, files, tmp_path):
 def test_frame_stepping_visits_keyframes_else_dataset_frame_times(files):
     """The app's frame steps (arrow keys and buttons) go to a keyframed model's keys, else to the frame times of the
     dataset cameras it shows, else by one 30 FPS playback frame. `load` sets them; no window is needed for that."""
-    from splat4d.viewer.app import AppOptions, ViewerApp
-    from splat4d.viewer.camera_path import dataset_views
-    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.camera_path import dataset_views
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
     from test_model import keyframed
 
     root, model, ckpt = files
@@ -274,7 +274,7 @@ def test_app_inspects_a_pixel_given_on_the_command_line(display, files, tmp_path
     """``view --inspect X,Y`` (a Ctrl+click at start-up): the report lists the Gaussians that make that pixel, the
     same ones, weights and alpha as a headless pick of the same view; the inspected Gaussian's 2-sigma ellipsoid
     (3 rings of 48 segments) is drawn; a pixel outside the window is a one-line error."""
-    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
 
     root, model, ckpt = files
     report = view_report(display, ckpt, tmp_path, "--inspect", "80,60")
@@ -298,9 +298,9 @@ def test_app_selects_the_gaussians_in_a_rectangle_given_on_the_command_line(disp
     """``view --select X0,Y0,X1,Y1`` (a Shift+drag at start-up): the report counts the Gaussians whose centre shows
     in that rectangle, as `selection.in_rect` finds them headless for the same view, and a cross is drawn on each;
     a malformed rectangle is a one-line error."""
-    from splat4d.viewer.selection import in_rect
-    from splat4d.viewer.sorting import depth_order
-    from splat4d.viewer.splats import to_arrays
+    from splatreel.viewer.selection import in_rect
+    from splatreel.viewer.sorting import depth_order
+    from splatreel.viewer.splats import to_arrays
 
     root, model, ckpt = files
     report = view_report(display, ckpt, tmp_path, "--select", "90,100,20,10")
@@ -317,16 +317,16 @@ def test_app_selects_the_gaussians_in_a_rectangle_given_on_the_command_line(disp
 
 
 def test_the_app_snaps_to_the_cameras_a_checkpoint_records(tmp_path):
-    """A model trained by splat4d carries its training cameras: the app offers them (any layout, dataset gone);
+    """A model trained by splatreel carries its training cameras: the app offers them (any layout, dataset gone);
     without them it falls back on the recorded dataset folder, and on nothing when that is gone too."""
-    from splat4d.cameras import DatasetView
-    from splat4d.viewer.app import ViewerApp
+    from splatreel.cameras import DatasetView
+    from splatreel.viewer.app import ViewerApp
 
     model = synthetic_model(20, seed=0)
     views = [DatasetView(f"v{i}", orbit(20, 90 * i, 3.0, fov_deg=40, width=64, height=48), 0.25 * i)
              for i in range(3)]
-    from splat4d.viewer.app import AppOptions
-    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.viewer.app import AppOptions
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
 
     trained = save_checkpoint(tmp_path / "trained.safetensors", model, views=views,
                               training={"dataset": str(tmp_path / "gone")})
@@ -349,7 +349,7 @@ def test_the_app_snaps_to_the_cameras_a_checkpoint_records(tmp_path):
     (["--no-adaptive-resolution", "--frame-budget", "20"], "--no-adaptive-resolution turns off"),
 ])
 def test_view_options_that_cannot_apply_are_one_line_errors_before_any_window(capsys, extra, message):
-    from splat4d.cli import main
+    from splatreel.cli import main
 
     assert main(["view", "--size", "160x120", *extra]) == 1
     err = capsys.readouterr().err.strip()

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from splat4d.cameras import look_at, orbit
-from splat4d.viewer.controls import CameraController, Playback
-from splat4d.viewer.trajectory import Framing
+from splatreel.cameras import look_at, orbit
+from splatreel.viewer.controls import CameraController, Playback
+from splatreel.viewer.trajectory import Framing
 
 
 def test_orbit_pan_zoom_fly_and_snap():
@@ -79,7 +79,7 @@ def test_playback_steps_frame_by_frame_through_frame_times_or_playback_frames():
 
 
 def test_resolution_drops_while_moving_to_fit_the_budget_and_is_sharp_at_rest():
-    from splat4d.viewer.controls import RESOLUTION_STEPS, Resolution, scaled_size
+    from splatreel.viewer.controls import RESOLUTION_STEPS, Resolution, scaled_size
 
     r = Resolution(budget_ms=40.0)
     assert r.choose(True, 1280, 720) == 1.0  # nothing measured yet
@@ -123,7 +123,7 @@ def test_resolution_drops_while_moving_to_fit_the_budget_and_is_sharp_at_rest():
 
 
 def test_playing_counts_as_a_changing_view_unless_playback_is_kept_sharp():
-    from splat4d.viewer.controls import Resolution
+    from splatreel.viewer.controls import Resolution
 
     r = Resolution()
     assert r.changing(moving=True, playing=False) and r.changing(moving=False, playing=True)

@@ -1,4 +1,4 @@
-"""Selecting and deleting Gaussians (`splat4d.viewer.selection`) and the app's Edit state on a headless renderer:
+"""Selecting and deleting Gaussians (`splatreel.viewer.selection`) and the app's Edit state on a headless renderer:
 what a rectangle selects at time t, the selection markers, delete / undo / restore, and what "Save edited" writes."""
 
 from __future__ import annotations
@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import look_at, orbit
-from splat4d.checkpoint import load_checkpoint, save_checkpoint
-from splat4d.constants import ALPHA_THRESHOLD, NEAR_PLANE
-from splat4d.train.rasterize import project_gaussians
-from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context, render_image
-from splat4d.viewer.selection import MAX_MARKERS, UNDO_LEVELS, Edits, in_rect, marker_segments
-from splat4d.viewer.sorting import depth_order
-from splat4d.viewer.splats import to_arrays
-from splat4d.viewer.synthetic import synthetic_model
+from splatreel.cameras import look_at, orbit
+from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.constants import ALPHA_THRESHOLD, NEAR_PLANE
+from splatreel.train.rasterize import project_gaussians
+from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context, render_image
+from splatreel.viewer.selection import MAX_MARKERS, UNDO_LEVELS, Edits, in_rect, marker_segments
+from splatreel.viewer.sorting import depth_order
+from splatreel.viewer.splats import to_arrays
+from splatreel.viewer.synthetic import synthetic_model
 from test_viewer_sort import BLUE, RED, swapping_pair
 
 
@@ -97,10 +97,10 @@ def test_edits_select_delete_undo_and_restore():
 @pytest.fixture()
 def app(tmp_path):
     """The desktop app's state on a headless renderer (no window), on a 2000-Gaussian model."""
-    from splat4d.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.app import AppOptions, ViewerApp
 
     model = synthetic_model(2000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
-    from splat4d.cameras import DatasetView
+    from splatreel.cameras import DatasetView
 
     ckpt = save_checkpoint(tmp_path / "m.safetensors", model, background=(1.0, 1.0, 1.0),
                            views=[DatasetView("train/r_000", orbit(20, 30, 2.0, fov_deg=40, width=64, height=64), 0.5)])
@@ -178,7 +178,7 @@ def test_app_does_not_drop_unsaved_deletions_at_the_first_open(app, tmp_path):
 def test_app_keeps_its_model_and_edits_when_a_new_one_cannot_be_shown(app, tmp_path, monkeypatch):
     """A model that loads but cannot be drawn (e.g. over this GPU's texture limits) leaves the app on the model it
     showed, with its edits; opening a model never carries the overwrite tick over."""
-    from splat4d.errors import GLError
+    from splatreel.errors import GLError
 
     other = save_checkpoint(tmp_path / "other.safetensors", synthetic_model(500, seed=2))
     app.select_rect(CAM, 0.5, (0, 0, 32, 64))
@@ -228,7 +228,7 @@ def test_app_delete_from_inspect_repicks_the_pixel(app):
 def test_a_new_model_of_the_same_size_is_sorted_anew():
     """Two crop boxes (or edits) can show as many Gaussians, laid out alike: the renderer's cached order (used by
     picks and rectangle selection) belongs to the Gaussians it was sorted for, not to their count."""
-    from splat4d.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
 
     cam = look_at((0.0, -6.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=40, width=64, height=48)
     pair = swapping_pair()

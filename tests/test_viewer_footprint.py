@@ -1,4 +1,4 @@
-"""Footprint caps and near plane (`splat4d.viewer.sorting.Footprint`): a splat drawn out to at most `max_std_dev`
+"""Footprint caps and near plane (`splatreel.viewer.sorting.Footprint`): a splat drawn out to at most `max_std_dev`
 std-devs, or to a share of the image height, is the uncapped splat inside that radius and nothing outside it, with
 points and quads, in the sort's screen boxes, in picks and from the command line; a nearer near plane draws what the
 trainer's culls."""
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import look_at
-from splat4d.checkpoint import save_checkpoint
-from splat4d.cli import main
-from splat4d.constants import EPS2D
-from splat4d.viewer.renderer import GLError, RenderSettings, SplatRenderer, headless_context
-from splat4d.viewer.sorting import Footprint
+from splatreel.cameras import look_at
+from splatreel.checkpoint import save_checkpoint
+from splatreel.cli import main
+from splatreel.constants import EPS2D
+from splatreel.viewer.renderer import GLError, RenderSettings, SplatRenderer, headless_context
+from splatreel.viewer.sorting import Footprint
 from test_viewer_sort import RED, gaussians_from_motion, swapping_pair
 
 SIZE = 64
@@ -87,7 +87,7 @@ def test_a_rotated_elongated_splat_is_cut_where_the_trainers_projection_says(cap
     """An elongated splat seen with the camera rolled by 30 degrees: the cut follows its 2D covariance from the
     trainer's projection, the screen cap along the major axis (sqrt(lambda_1) px per std-dev) and not along an
     image axis; the sort's box holds every drawn pixel."""
-    from splat4d.train.rasterize import project_gaussians
+    from splatreel.train.rasterize import project_gaussians
 
     model = elongated_gaussian()
     roll = math.radians(30)

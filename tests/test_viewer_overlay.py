@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from splat4d.cameras import orbit
-from splat4d.viewer.camera_path import CameraKey, CameraPath
-from splat4d.viewer.overlay import Frustums, LineRenderer, frustum_segments, path_segments
-from splat4d.viewer.renderer import headless_context
+from splatreel.cameras import orbit
+from splatreel.viewer.camera_path import CameraKey, CameraPath
+from splatreel.viewer.overlay import Frustums, LineRenderer, frustum_segments, path_segments
+from splatreel.viewer.renderer import headless_context
 
 
 def test_frustum_reaches_the_image_corners_at_the_given_depth():

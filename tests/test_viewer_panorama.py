@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import look_at
-from splat4d.checkpoint import save_checkpoint
-from splat4d.errors import CameraError
-from splat4d.model import static_gaussians4d
-from splat4d.viewer.camera_path import CameraPath
-from splat4d.viewer.headless import render_frames
-from splat4d.viewer.panorama import Equirect, face_rotations
-from splat4d.viewer.renderer import RenderSettings
+from splatreel.cameras import look_at
+from splatreel.checkpoint import save_checkpoint
+from splatreel.errors import CameraError
+from splatreel.model import static_gaussians4d
+from splatreel.viewer.camera_path import CameraPath
+from splatreel.viewer.headless import render_frames
+from splatreel.viewer.panorama import Equirect, face_rotations
+from splatreel.viewer.renderer import RenderSettings
 
 #: the panorama camera: at (1, 2, 0.5), looking along +y, z up
 CAMERA = look_at((1.0, 2.0, 0.5), (1.0, 3.0, 0.5), "z", fov_deg=40, width=64, height=64)
@@ -29,7 +29,7 @@ DIRECTIONS = [(0, 0), (90, 0), (-90, 0), (179, 0), (0, 80), (0, -80), (45, 0), (
 
 
 def direction(lon_deg: float, lat_deg: float) -> np.ndarray:
-    """World direction of a panorama (longitude, latitude) for `CAMERA` (module doc of splat4d.viewer.panorama)."""
+    """World direction of a panorama (longitude, latitude) for `CAMERA` (module doc of splatreel.viewer.panorama)."""
     lon, lat = math.radians(lon_deg), math.radians(lat_deg)
     d = np.array([math.cos(lat) * math.sin(lon), -math.sin(lat), math.cos(lat) * math.cos(lon)])
     return CAMERA.c2w[:3, :3] @ d
@@ -108,7 +108,7 @@ def test_render_writes_panoramas_and_their_cameras_as_an_equirectangular_path(tm
     ckpt = save_checkpoint(tmp_path / "m.safetensors", model)
 
     def render(*args):
-        return subprocess.run([sys.executable, "-m", "splat4d", "render", str(ckpt), "--quiet", *args],
+        return subprocess.run([sys.executable, "-m", "splatreel", "render", str(ckpt), "--quiet", *args],
                               capture_output=True, text=True, timeout=300)
 
     first, cams = tmp_path / "pano.png", tmp_path / "cams.json"
@@ -141,8 +141,8 @@ def test_panorama_videos_carry_the_spherical_tag(tmp_path):
     frame; a flat render is not tagged."""
     import av
 
-    from splat4d.viewer.headless import render_to_file
-    from splat4d.viewer.spherical import spherical_projection
+    from splatreel.viewer.headless import render_to_file
+    from splatreel.viewer.spherical import spherical_projection
 
     model = gaussians_at(np.array([direction(0, 0) * 2 + CAMERA.position]), [[1.0, 0.2, 0.1]], 0.4)
     for suffix in (".mp4", ".mov"):
@@ -163,7 +163,7 @@ def test_tagging_a_fast_start_file_shifts_its_chunk_offsets(tmp_path):
     frames decode exactly as before; tagging twice changes nothing."""
     import av
 
-    from splat4d.viewer.spherical import spherical_projection, tag_equirectangular
+    from splatreel.viewer.spherical import spherical_projection, tag_equirectangular
 
     path = tmp_path / "fast.mp4"
     with av.open(str(path), "w", options={"movflags": "faststart"}) as c:

@@ -9,21 +9,21 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import Camera, look_at_c2w, orbit
-from splat4d.checkpoint import load_checkpoint, save_checkpoint
-from splat4d.errors import GLError
-from splat4d.model import KeyframedGaussians
-from splat4d.samples import trained_checkpoint
-from splat4d.train import losses
-from splat4d.train.rasterize import rasterize
-from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
-from splat4d.viewer.synthetic import synthetic_model
+from splatreel.cameras import Camera, look_at_c2w, orbit
+from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.errors import GLError
+from splatreel.model import KeyframedGaussians
+from splatreel.samples import trained_checkpoint
+from splatreel.train import losses
+from splatreel.train.rasterize import rasterize
+from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
+from splatreel.viewer.synthetic import synthetic_model
 
 MIN_PSNR = 40.0
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """`splat4d.train.losses.psnr` (the project's one PSNR) on numpy images."""
+    """`splatreel.train.losses.psnr` (the project's one PSNR) on numpy images."""
     return losses.psnr(torch.from_numpy(np.asarray(a, np.float64)), torch.from_numpy(np.asarray(b, np.float64)))
 
 
@@ -43,7 +43,7 @@ def value_images(model, camera, t, mode: str, values: torch.Tensor):
     rasterizer's red channel of ``model.slice(t)`` with every Gaussian's colour set to its entry of `values`)."""
     from dataclasses import replace
 
-    from splat4d.sh import SH_C0
+    from splatreel.sh import SH_C0
 
     r = SplatRenderer(headless_context(), model)
     try:
@@ -110,7 +110,7 @@ def test_speed_mode_accumulates_each_gaussians_speed_like_the_rasterizer_composi
     """The speed mode composites |d mean / dt| in place of colour: the GL accumulation equals the rasterizer's image
     of the same slice with every Gaussian's colour set to its speed (`Gaussians3D.velocities`), for a native model
     (conditional-mean velocity) and a keyframed one (its key segment's velocity)."""
-    from splat4d.viewer.splats import to_arrays, typical_speed
+    from splatreel.viewer.splats import to_arrays, typical_speed
 
     native = synthetic_model(3000, seed=5, sh_degree=1, radius=0.4, scale=0.02, speed=0.5)
     keyed = keyframed(native, (0.0, 0.5, 1.0))
@@ -198,7 +198,7 @@ def test_lifespan_mode_accumulates_each_gaussians_visible_span_capped_at_the_tim
     marginal exceeds the cull), capped at the model's time span, like the rasterizer composites that value as
     colour; the colour map runs from 0 to the time span. A keyframed model stores no lifespans: all read as the
     whole span."""
-    from splat4d.covariance import condition_on_time, visible_span
+    from splatreel.covariance import condition_on_time, visible_span
 
     model = synthetic_model(4000, seed=6, sh_degree=1, radius=0.4, scale=0.02, speed=0.3, lifetime=0.08)
     camera = orbit(20, 40, 1.6, fov_deg=45, width=96, height=96)
@@ -222,7 +222,7 @@ def test_fade_mode_accumulates_each_gaussians_temporal_opacity_factor():
     """The fade mode composites each Gaussian's temporal marginal at t (the factor on its opacity: 1 at its temporal
     peak, down to the 0.05 cull), like the rasterizer composites that value as colour; the map runs from 0 to 1.
     A keyframed model does not fade: all read 1."""
-    from splat4d.covariance import condition_on_time, temporal_marginal
+    from splatreel.covariance import condition_on_time, temporal_marginal
 
     model = synthetic_model(4000, seed=7, sh_degree=1, radius=0.4, scale=0.02, speed=0.3, lifetime=0.15)
     camera = orbit(20, 40, 1.6, fov_deg=45, width=96, height=96)

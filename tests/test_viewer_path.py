@@ -8,15 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from splat4d.cameras import look_at, look_at_c2w, orbit
-from splat4d.errors import CameraError, OutputExistsError
-from splat4d.viewer.camera_path import CameraKey, CameraPath, dataset_views, path_from_dataset
-from splat4d.viewer.trajectory import orbit_cameras, path_frame_count, scene_times
+from splatreel.cameras import look_at, look_at_c2w, orbit
+from splatreel.errors import CameraError, OutputExistsError
+from splatreel.viewer.camera_path import CameraKey, CameraPath, dataset_views, path_from_dataset
+from splatreel.viewer.trajectory import orbit_cameras, path_frame_count, scene_times
 
 
 def sample_path(loop: bool = False) -> CameraPath:
     data = {
-        "format": "splat4d-camera-path", "version": 1, "up": "z", "loop": loop,
+        "format": "splatreel-camera-path", "version": 1, "up": "z", "loop": loop,
         "keyframes": [
             {"time": 0.0, "position": [3.0, 0.0, 1.0], "look_at": [0.0, 0.0, 0.0], "fov": 40.0, "scene_time": 0.0},
             {"time": 1.5, "position": [0.0, 3.0, 1.5], "look_at": [0.0, 0.0, 0.2], "fov": 30.0, "scene_time": 0.5},
@@ -28,6 +28,12 @@ def sample_path(loop: bool = False) -> CameraPath:
         ],
     }
     return CameraPath.from_json(data)
+
+
+def test_paths_written_before_the_rename_still_load():
+    data = sample_path().to_json()
+    data["format"] = "splat4d-camera-path"
+    assert CameraPath.from_json(data).to_json() == sample_path().to_json()
 
 
 def test_path_file_round_trips(tmp_path):
@@ -87,7 +93,7 @@ def test_looping_path_closes_smoothly():
     (lambda d: d["keyframes"][0].update(fov=200), "fov"),
     (lambda d: d["keyframes"][0].update(fov=float("nan")), "finite"),
     (lambda d: d.update(up="w"), "up"),
-    (lambda d: d.update(format="other"), "not a splat4d camera path"),
+    (lambda d: d.update(format="other"), "not a splatreel camera path"),
 ])
 def test_bad_path_files_raise_one_line_errors(tmp_path, edit, message):
     data = sample_path().to_json()
@@ -121,9 +127,9 @@ def test_dataset_cameras_become_a_path(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(CameraError, match="transforms_train.json"):
         dataset_views(tmp_path / "empty", "train")
-    # a checkpoint recording these cameras (as `splat4d train` writes them) stands in for the dataset
-    from splat4d.checkpoint import save_checkpoint
-    from splat4d.viewer.synthetic import synthetic_model
+    # a checkpoint recording these cameras (as `splatreel train` writes them) stands in for the dataset
+    from splatreel.checkpoint import save_checkpoint
+    from splatreel.viewer.synthetic import synthetic_model
 
     model = synthetic_model(10, seed=0)
     save_checkpoint(tmp_path / "trained.safetensors", model, views=views)
@@ -166,8 +172,8 @@ def test_framing_ignores_a_few_floaters():
     """The viewer frames the object, not the floaters a trained model keeps far away; exporters' bounds hold all."""
     import torch
 
-    from splat4d.model import model_bounds, static_gaussians4d
-    from splat4d.viewer.trajectory import frame_model
+    from splatreel.model import model_bounds, static_gaussians4d
+    from splatreel.viewer.trajectory import frame_model
 
     gen = torch.Generator().manual_seed(0)
     body = torch.rand((2000, 3), generator=gen, dtype=torch.float64) - 0.5  # unit cube at the origin
@@ -239,7 +245,7 @@ def test_bad_nerfstudio_paths_raise_one_line_errors(tmp_path, edit, message):
 def test_a_keyframed_path_saves_as_nerfstudio_frames_that_load_back_onto_it(tmp_path):
     """`path_as_nerfstudio` (the app's Save as "nerfstudio frames"): one frame every 1/fps over the path, with its
     scene times; read back, each frame is the path's camera and scene time at that moment."""
-    from splat4d.viewer.trajectory import path_as_nerfstudio
+    from splatreel.viewer.trajectory import path_as_nerfstudio
 
     path = sample_path()
     data = path_as_nerfstudio(path, 64, 48, fps=10.0, time_range=(0.0, 2.0))
@@ -261,10 +267,10 @@ def test_a_keyframed_path_saves_as_nerfstudio_frames_that_load_back_onto_it(tmp_
 
 
 def test_the_app_saves_its_path_in_either_format(tmp_path):
-    from splat4d.checkpoint import save_checkpoint
-    from splat4d.viewer.app import AppOptions, ViewerApp
-    from splat4d.viewer.renderer import SplatRenderer, headless_context
-    from splat4d.viewer.synthetic import synthetic_model
+    from splatreel.checkpoint import save_checkpoint
+    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.viewer.synthetic import synthetic_model
 
     ckpt = save_checkpoint(tmp_path / "m.safetensors", synthetic_model(100, seed=1))
     app = ViewerApp(ckpt, AppOptions(size=(80, 60)))
@@ -273,7 +279,7 @@ def test_the_app_saves_its_path_in_either_format(tmp_path):
     pe = app._path
     pe.path, pe.file = sample_path(), str(tmp_path / "p.json")
     assert app._attempt(app._save_path)
-    assert json.loads((tmp_path / "p.json").read_text())["format"] == "splat4d-camera-path"
+    assert json.loads((tmp_path / "p.json").read_text())["format"] == "splatreel-camera-path"
     pe.nerfstudio = True
     assert not app._attempt(app._save_path) and "already exists" in app.status  # no overwrite unless ticked
     pe.overwrite = True

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import look_at, orbit
-from splat4d.checkpoint import save_checkpoint
-from splat4d.covariance import condition_on_time, visible_span
-from splat4d.model import CropBox
-from splat4d.viewer.overlay import ellipsoid_segments
-from splat4d.viewer.pick import composite_pixel, describe, peak_time
-from splat4d.viewer.renderer import RenderSettings, SplatRenderer, headless_context
-from splat4d.viewer.synthetic import synthetic_model
+from splatreel.cameras import look_at, orbit
+from splatreel.checkpoint import save_checkpoint
+from splatreel.covariance import condition_on_time, visible_span
+from splatreel.model import CropBox
+from splatreel.viewer.overlay import ellipsoid_segments
+from splatreel.viewer.pick import composite_pixel, describe, peak_time
+from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
+from splatreel.viewer.synthetic import synthetic_model
 from test_model import keyframed
 from test_viewer_sort import BLUE, RED, swapping_pair
 
@@ -125,7 +125,7 @@ def test_ellipsoid_rings_lie_at_two_sigma():
 def test_app_inspects_a_pixel_and_forgets_it_on_crop(tmp_path):
     """The app's Ctrl+click handler: `inspect` fills the panel and the report; the inspected Gaussian's ellipsoid
     and rows follow the time; a crop (new indices) clears it."""
-    from splat4d.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.app import AppOptions, ViewerApp
 
     model = synthetic_model(2000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
     ckpt = save_checkpoint(tmp_path / "m.safetensors", model)
@@ -155,7 +155,7 @@ def test_app_inspects_a_pixel_and_forgets_it_on_crop(tmp_path):
 
 
 def test_surface_depth_is_where_half_the_pixel_is_accumulated():
-    from splat4d.viewer.pick import PixelHit, PixelStack
+    from splatreel.viewer.pick import PixelHit, PixelStack
 
     hits = tuple(PixelHit(i, 0.5, w, d, (1.0, 1.0, 1.0)) for i, (w, d) in enumerate([(0.1, 1.0), (0.3, 2.0),
                                                                                       (0.5, 3.0)]))
@@ -168,8 +168,8 @@ def test_app_measures_the_distance_between_two_surfaces(tmp_path):
     """Alt+click twice (`ViewerApp.measure`): two small opaque blobs at known places, clicked at the pixels their
     centres project to, are measured at their true distance (to the half-pixel the click is rounded to); a third
     click starts again; the background is a one-line error."""
-    from splat4d.model import static_gaussians4d
-    from splat4d.viewer.app import AppOptions, ViewerApp
+    from splatreel.model import static_gaussians4d
+    from splatreel.viewer.app import AppOptions, ViewerApp
 
     ends = np.array([[-0.5, 0.0, 0.1], [0.6, 0.8, -0.3]])
     model = static_gaussians4d(torch.tensor(ends), torch.full((2, 3), 0.04, dtype=torch.float64),

@@ -1,4 +1,4 @@
-"""Headless rendering: ``splat4d render`` to mp4 / mov / webm / EXR / PNG, compositing and alpha, render modes,
+"""Headless rendering: ``splatreel render`` to mp4 / mov / webm / EXR / PNG, compositing and alpha, render modes,
 errors."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import OpenImageIO as oiio
 import pytest
 import torch
 
-from splat4d.cameras import orbit
-from splat4d.checkpoint import save_checkpoint
-from splat4d.cli import main
-from splat4d.constants import TRANSMITTANCE_THRESHOLD
-from splat4d.viewer.renderer import RENDER_MODES, RenderSettings, SplatRenderer, headless_context, render_image
-from splat4d.viewer.synthetic import synthetic_model
+from splatreel.cameras import orbit
+from splatreel.checkpoint import save_checkpoint
+from splatreel.cli import main
+from splatreel.constants import TRANSMITTANCE_THRESHOLD
+from splatreel.viewer.renderer import RENDER_MODES, RenderSettings, SplatRenderer, headless_context, render_image
+from splatreel.viewer.synthetic import synthetic_model
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +144,7 @@ def test_videos_keep_the_colours_and_say_bt709(tmp_path, suffix, codec, pix_fmt,
     """Saturated colour bars survive the RGB -> YUV -> RGB trip through every video format: the file is converted
     and tagged with one matrix (BT.709), so a decoder that follows the tags gets the colours back (the untagged
     BT.601 files of before decoded pure green as 0,215,0 in a BT.709 player)."""
-    from splat4d.viewer.output import open_output
+    from splatreel.viewer.output import open_output
 
     bars = np.zeros((32, 64, 4), np.float32)
     bars[..., 3] = 1.0
@@ -177,8 +177,8 @@ def test_transparent_videos_keep_alpha(model, ckpt, tmp_path, suffix, colour_err
         assert stream.codec_context.pix_fmt == "yuva444p12le"  # 4444 profile: alpha in the stream
     else:
         assert stream.metadata.get("alpha_mode") == "1"  # WebM's flag that browsers look for
-    from splat4d.viewer.output import unpremultiply
-    from splat4d.viewer.trajectory import frame_model, orbit_cameras
+    from splatreel.viewer.output import unpremultiply
+    from splatreel.viewer.trajectory import frame_model, orbit_cameras
 
     framing = frame_model(model)
     cam = orbit_cameras(3, 64, 48, framing.center, framing.distance(40.0), 20.0, 40.0, "z", 1.0, 30.0)[0]
@@ -212,9 +212,9 @@ def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message
 
 
 def test_render_crop_draws_only_the_box_and_frames_it(model, ckpt, tmp_path):
-    """``render --crop`` renders the cropped model (`splat4d.model.crop`), framed by its own extent."""
-    from splat4d.model import CropBox, crop
-    from splat4d.viewer.trajectory import frame_model, orbit_cameras
+    """``render --crop`` renders the cropped model (`splatreel.model.crop`), framed by its own extent."""
+    from splatreel.model import CropBox, crop
+    from splatreel.viewer.trajectory import frame_model, orbit_cameras
 
     box = [-0.4, -0.4, -0.4, 0.0, 0.4, 0.4]
     out = tmp_path / "half.exr"
@@ -242,10 +242,10 @@ def test_a_still_image_is_one_frame(ckpt, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(SplatRenderer, "render", lambda *a, **k: calls.append(1))
     assert main(["render", str(ckpt), "--out", "frame_%04d.png", "--frames", "3", "--quiet"]) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith("splat4d render: error: frame_%04d.png holds one image, not 3 frames") and "\n" not in err
+    assert err.startswith("splatreel render: error: frame_%04d.png holds one image, not 3 frames") and "\n" not in err
     assert not calls and not list(tmp_path.glob("*frame*"))  # refused before drawing anything
-    from splat4d.viewer.headless import render_to_file
-    from splat4d.viewer.output import OutputError
+    from splatreel.viewer.headless import render_to_file
+    from splatreel.viewer.output import OutputError
     cams = [orbit(20, a, 2.0, 40, 40, 30) for a in (0, 10)]
     with pytest.raises(OutputError, match="^two.png: a single image takes one frame, not 2"):
         render_to_file(None, "two.png", cams, [0.5, 0.5])
@@ -299,7 +299,7 @@ def test_background_compositing_and_modes(model):
 def test_a_depth_video_keeps_one_colour_map_range_for_all_its_frames(model):
     """Per-frame depth ranges would make a moving camera's depth video flicker: `render_frames` maps every frame
     over the union of the sampled frames' ranges, and --map-range sets it by hand."""
-    from splat4d.viewer.headless import render_frames, sequence_depth_range
+    from splatreel.viewer.headless import render_frames, sequence_depth_range
 
     cams = [orbit(20, 30 + 10 * k, d, fov_deg=45, width=48, height=48) for k, d in enumerate((1.3, 1.6, 2.0, 2.6))]
     times = [0.2, 0.4, 0.6, 0.8]
@@ -338,7 +338,7 @@ def test_skipping_hidden_gaussians_keeps_the_image():
 
 
 def test_staging_is_used_only_where_saturation_can_hide_gaussians():
-    from splat4d.viewer.sorting import DEPTH_TILE, hideable_fraction
+    from splatreel.viewer.sorting import DEPTH_TILE, hideable_fraction
 
     saturating = -math.log(TRANSMITTANCE_THRESHOLD)
     tile_area = DEPTH_TILE * DEPTH_TILE
@@ -437,9 +437,9 @@ def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model
     the new size, must still contain every pixel each Gaussian reaches (else points would clip and hidden-tile
     skipping would drop visible Gaussians), with a std-dev cap too, and for sizes that scale the two axes
     differently (rounding). (Orders with a screen-radius cap are sorted again instead: the next test.)"""
-    from splat4d.viewer.renderer import _boxes_for
-    from splat4d.viewer.splats import to_arrays
-    from splat4d.viewer.sorting import Footprint, depth_order
+    from splatreel.viewer.renderer import _boxes_for
+    from splatreel.viewer.splats import to_arrays
+    from splatreel.viewer.sorting import Footprint, depth_order
 
     arrays = to_arrays(model)
     fp = Footprint(**footprint)
@@ -489,7 +489,7 @@ def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest(tmp_
     """One Gaussian with a short time window (var_t 0.01: marginal exp(-t^2 / 0.02)), seen head-on at several
     times: with the smooth fade its alpha is the cut one's times smoothstep(0.05, 0.1, marginal)
     (`covariance.temporal_factor`), the same from a marginal of 0.1 up, and 0 from the cull on, like the cut."""
-    from splat4d.covariance import TEMPORAL_FADES, temporal_factor, temporal_marginal
+    from splatreel.covariance import TEMPORAL_FADES, temporal_factor, temporal_marginal
 
     from test_viewer_sort import gaussians_from_motion
 

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from splat4d.cameras import look_at, orbit
-from splat4d.covariance import covariance_4d_from_motion, decompose_covariance_4d
-from splat4d.model import Gaussians4D
-from splat4d.sh import rgb_to_sh
-from splat4d.viewer.renderer import RenderSettings, render_image
-from splat4d.viewer.sorting import AsyncSorter, depth_order
-from splat4d.viewer.splats import to_arrays
-from splat4d.viewer.synthetic import synthetic_model
+from splatreel.cameras import look_at, orbit
+from splatreel.covariance import covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.model import Gaussians4D
+from splatreel.sh import rgb_to_sh
+from splatreel.viewer.renderer import RenderSettings, render_image
+from splatreel.viewer.sorting import AsyncSorter, depth_order
+from splatreel.viewer.splats import to_arrays
+from splatreel.viewer.synthetic import synthetic_model
 
 RED, BLUE = 0, 1
 
@@ -67,8 +67,8 @@ def reference_order(model, camera, t: float) -> tuple[np.ndarray, np.ndarray]:
     place): the back-to-front indices and their (u, v, hx, hy, quad area, optical mass) boxes."""
     from scipy.special import spence  # Li2(x) = spence(1 - x)
 
-    from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE
-    from splat4d.train.rasterize import project_gaussians
+    from splatreel.constants import ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE
+    from splatreel.train.rasterize import project_gaussians
 
     g = model.slice(t)
     means, covs, o = g.means.double(), g.covariances.double(), g.opacities.double().numpy()
@@ -151,7 +151,7 @@ def test_async_sorter_delivers_the_latest_request():
 def test_dilogarithm_of_the_optical_mass():
     from scipy.special import spence
 
-    from splat4d.viewer.sorting import _dilog
+    from splatreel.viewer.sorting import _dilog
 
     for x in (0.0, 1e-3, 0.3, 0.5, 0.5001, 0.8, 0.99):
         assert _dilog(x) == pytest.approx(spence(1.0 - x), abs=2e-6), x
@@ -159,7 +159,7 @@ def test_dilogarithm_of_the_optical_mass():
 
 
 def test_radix_order_is_a_stable_argsort_of_the_finite_keys():
-    from splat4d.viewer.sorting import _radix_order
+    from splatreel.viewer.sorting import _radix_order
 
     rng = np.random.default_rng(5)
     keys = np.concatenate([rng.normal(0, 3, 5000), rng.choice([-2.5, 0.0, -0.0, 1.0], 3000),  # many ties

@@ -1,7 +1,7 @@
 """Numba CPU kernels of the tile rasterizer: binning, front-to-back compositing and its backward pass.
 
 Everything here works on plain numpy arrays of *rendered* Gaussians (already projected, culled and sorted front to
-back by `splat4d.train.rasterize`); M is their number, n the number of (tile, Gaussian) intersections, and every
+back by `splatreel.train.rasterize`); M is their number, n the number of (tile, Gaussian) intersections, and every
 float is float32. The math is the reference 3DGS one (shared notes `rasterizer.md` §1.7-1.8):
 
 * pixel (i, j) has its centre at (i + 0.5, j + 0.5); d = mean2d - centre;
@@ -21,7 +21,7 @@ must take exactly the same per-pixel decisions, and IEEE arithmetic without cont
 guarantees that.
 
 Compiled code is cached on disk (numba ``cache=True``) under ``$NUMBA_CACHE_DIR`` if the user set it, else under
-``$XDG_CACHE_HOME/splat4d/numba`` (``~/.cache/splat4d/numba``), so a read-only install compiles once per machine.
+``$XDG_CACHE_HOME/splatreel/numba`` (``~/.cache/splatreel/numba``), so a read-only install compiles once per machine.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from __future__ import annotations
 import os
 import tempfile
 
-from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_THRESHOLD
+from splatreel.constants import ALPHA_THRESHOLD, MAX_ALPHA, TILE_SIZE, TRANSMITTANCE_THRESHOLD
 
 
 def _writable(path: str) -> bool:
@@ -42,9 +42,9 @@ def _writable(path: str) -> bool:
 
 
 def default_cache_dir() -> str:
-    """``$XDG_CACHE_HOME/splat4d/numba``, ``XDG_CACHE_HOME`` defaulting to ``~/.cache``."""
+    """``$XDG_CACHE_HOME/splatreel/numba``, ``XDG_CACHE_HOME`` defaulting to ``~/.cache``."""
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "splat4d", "numba")
+    return os.path.join(base, "splatreel", "numba")
 
 
 def _configure_cache() -> bool:
@@ -54,7 +54,7 @@ def _configure_cache() -> bool:
     """
     if not os.environ.get("NUMBA_CACHE_DIR"):
         user = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
-        candidates = [default_cache_dir(), os.path.join(tempfile.gettempdir(), f"splat4d-numba-{user}")]
+        candidates = [default_cache_dir(), os.path.join(tempfile.gettempdir(), f"splatreel-numba-{user}")]
         chosen = next((c for c in candidates if _writable(c)), None)
         if chosen is None:
             return False

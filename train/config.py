@@ -175,10 +175,10 @@ PRESETS = {
 
 
 def preset(name: str) -> TrainConfig:
-    from splat4d.errors import Splat4DError
+    from splatreel.errors import SplatreelError
 
     if name not in PRESETS:
-        raise Splat4DError(f"unknown preset {name!r} (expected one of {', '.join(PRESETS)})")
+        raise SplatreelError(f"unknown preset {name!r} (expected one of {', '.join(PRESETS)})")
     if PRESETS[name][1] is None:
-        raise Splat4DError(f"preset {name!r} reads the dataset: use splat4d.train.recipe.auto_recipe")
+        raise SplatreelError(f"preset {name!r} reads the dataset: use splatreel.train.recipe.auto_recipe")
     return PRESETS[name][1]()

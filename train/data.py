@@ -1,6 +1,6 @@
-"""Multi-view video datasets: the layouts splat4d trains on, read into one in-memory form.
+"""Multi-view video datasets: the layouts splatreel trains on, read into one in-memory form.
 
-Every layout becomes a `Dataset` of `View`s (an image, its optional alpha mask, a `splat4d.cameras.Camera`, a time
+Every layout becomes a `Dataset` of `View`s (an image, its optional alpha mask, a `splatreel.cameras.Camera`, a time
 and the view / frame indices). Layouts, auto-detected by `detect_layout` (see README "Training data"):
 
 * ``dnerf``: ``transforms_{train,test,val}.json`` + images (Blender/NeRF OpenGL c2w poses, time in [0, 1]); RGBA
@@ -29,8 +29,8 @@ from typing import Callable
 
 import numpy as np
 
-from splat4d.cameras import Camera, nerf_frame_camera, orbit
-from splat4d.errors import CameraError, DatasetError
+from splatreel.cameras import Camera, nerf_frame_camera, orbit
+from splatreel.errors import CameraError, DatasetError
 
 LAYOUTS = ("dnerf", "orbit", "efficient4d", "sv4d")
 #: Pixels whose mean brightness is above this (of 255) count as white background in RGB-only generated data

@@ -7,13 +7,13 @@ import time
 import numpy as np
 import torch
 
-from splat4d.model import Model
+from splatreel.model import Model
 
 from .data import View
 from .losses import psnr, ssim
 from .rasterize import rasterize
 
-LPIPS_NOTE = ("LPIPS not computed: it needs pretrained network weights, which splat4d does not download and "
+LPIPS_NOTE = ("LPIPS not computed: it needs pretrained network weights, which splatreel does not download and "
               "which are not available locally")
 
 

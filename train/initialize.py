@@ -7,8 +7,8 @@ import math
 import numpy as np
 import torch
 
-from splat4d import sh
-from splat4d.errors import Splat4DError
+from splatreel import sh
+from splatreel.errors import SplatreelError
 
 from .data import Dataset
 
@@ -55,9 +55,9 @@ def mesh_points(path: str, n: int, seed: int) -> tuple[torch.Tensor, torch.Tenso
     try:
         mesh = trimesh.load(path, force="mesh")
     except Exception as exc:  # trimesh raises many kinds for unreadable files
-        raise Splat4DError(f"{path}: cannot read mesh ({str(exc).strip() or type(exc).__name__})") from None
+        raise SplatreelError(f"{path}: cannot read mesh ({str(exc).strip() or type(exc).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise Splat4DError(f"{path}: no triangles in this mesh")
+        raise SplatreelError(f"{path}: no triangles in this mesh")
     try:
         pts, _, colors = trimesh.sample.sample_surface(mesh, n, sample_color=True, seed=seed)
         rgb = np.asarray(colors, dtype=np.float64)[:, :3] / 255.0
@@ -210,14 +210,14 @@ def frustum_init(n: int, ds: Dataset, centre: np.ndarray, generator: torch.Gener
 
 def point_cloud_init(path, n: int, ds: Dataset, generator: torch.Generator
                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """(points, RGB or None) from a dataset's point cloud (`splat4d.train.points`): at most `n` of its points
+    """(points, RGB or None) from a dataset's point cloud (`splatreel.train.points`): at most `n` of its points
     (a random subset when it has more), dropped when fewer than half lie in any training view (another frame)."""
     from .points import in_view_share, read_point_cloud
 
     xyz, rgb = read_point_cloud(path)
     share = in_view_share(xyz, {v.view_id: v.camera for v in ds.train}.values())
     if share < 0.5:
-        raise Splat4DError(f"{path}: only {100 * share:.0f}% of its points lie in view of the training cameras "
+        raise SplatreelError(f"{path}: only {100 * share:.0f}% of its points lie in view of the training cameras "
                            "(another coordinate frame?); use --init ball or frustum")
     if len(xyz) > n:
         idx = torch.randperm(len(xyz), generator=generator)[:n].numpy()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from splat4d.errors import DatasetError
+from splatreel.errors import DatasetError
 
 #: Looked for in this order, relative to the dataset folder.
 POINT_CLOUD_NAMES = ("fused.ply", "points3d.ply", "points3D.ply", "sparse/0/points3D.bin", "sparse/0/points3D.txt",

@@ -6,7 +6,7 @@ PyTorch autograd with respect to every tensor of the `Gaussians3D`, hence (throu
 every parameter of a native 4D model.
 
 The math is the reference 3DGS one (shared notes `rasterizer.md` §1, `4dgs-core.md` §4.2-4.3), with the
-constants of `splat4d.constants`:
+constants of `splatreel.constants`:
 
 1. **Projection** (plain torch, differentiable): world -> camera with the OpenCV ``w2c``; cull at
    ``z <= NEAR_PLANE``; EWA ``Σ2D = J W Σ Wᵀ Jᵀ`` with the Jacobian evaluated at x/z, y/z clamped to
@@ -22,7 +22,7 @@ constants of `splat4d.constants`:
    ``alpha = min(0.99, o exp(-σ))``, skipped below 1/255, stopping once T would fall to 1e-4 or below, pixel centres
    at +0.5. Gradients are race-free and deterministic (one slot per tile intersection, summed in a fixed order).
 
-On a CUDA device with gsplat installed (``pip install splat4d[cuda]``) step 4 runs gsplat's
+On a CUDA device with gsplat installed (``pip install splatreel[cuda]``) step 4 runs gsplat's
 ``rasterize_to_pixels`` on the GPU with the same projection and tile lists; otherwise CUDA tensors are composited
 by the CPU kernels (data moves to the CPU for that step only).
 """
@@ -38,12 +38,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from splat4d.cameras import Camera
-from splat4d.constants import (ALPHA_THRESHOLD, EIGEN_FLOOR, EPS2D, FAR_PLANE, FRUSTUM_CLAMP, NEAR_PLANE,
+from splatreel.cameras import Camera
+from splatreel.constants import (ALPHA_THRESHOLD, EIGEN_FLOOR, EPS2D, FAR_PLANE, FRUSTUM_CLAMP, NEAR_PLANE,
                                RADIUS_SIGMAS, TILE_SIZE)
-from splat4d.errors import CameraError, ModelError, Splat4DError
-from splat4d.model import Gaussians3D
-from splat4d.sh import num_sh_bases
+from splatreel.errors import CameraError, ModelError, SplatreelError
+from splatreel.model import Gaussians3D
+from splatreel.sh import num_sh_bases
 
 __all__ = ["RenderOutput", "rasterize", "project_gaussians", "ProjectedGaussians"]
 
@@ -314,7 +314,7 @@ def _background(background, like: Tensor) -> Tensor:
     bg = torch.as_tensor(background, dtype=torch.float32, device=like.device) if not isinstance(
         background, Tensor) else background.to(device=like.device, dtype=torch.float32)
     if bg.shape != (3,) or not bool(torch.isfinite(bg).all()):
-        raise Splat4DError(f"background must be 3 finite numbers (RGB), got {background!r}")
+        raise SplatreelError(f"background must be 3 finite numbers (RGB), got {background!r}")
     return bg
 
 
@@ -360,7 +360,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         ModelError: wrong shapes or dtypes, or NaN/inf in a visible Gaussian. CameraError: not a Camera.
     """
     if not isinstance(camera, Camera):
-        raise CameraError(f"rasterize needs a splat4d Camera, got {type(camera).__name__}")
+        raise CameraError(f"rasterize needs a splatreel Camera, got {type(camera).__name__}")
     if camera.width <= 0 or camera.height <= 0:
         raise CameraError(f"image size must be positive, got {camera.width}x{camera.height}")
     _check_gaussians(gaussians, sh_degree)

@@ -39,7 +39,7 @@ class DataTraits:
     width: int
     height: int
     point_cloud: Path | None
-    #: The dataset's layout (`splat4d.train.data.LAYOUTS`).
+    #: The dataset's layout (`splatreel.train.data.LAYOUTS`).
     layout: str = "dnerf"
 
     @property

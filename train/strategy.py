@@ -13,7 +13,7 @@ from typing import Callable
 import torch
 from torch import Tensor
 
-from splat4d import covariance
+from splatreel import covariance
 
 from .config import DensifyConfig
 

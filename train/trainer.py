@@ -1,7 +1,7 @@
 """The training loop: fit a `Gaussians4D` to a `Dataset` with one of the recipes of `config`.
 
 `Trainer` is the stateful edge (parameters, Adam, random generator, densification statistics); everything it calls
-is a pure function elsewhere in this package. A run writes ``OUT`` (a splat4d checkpoint) and, beside it,
+is a pure function elsewhere in this package. A run writes ``OUT`` (a splatreel checkpoint) and, beside it,
 ``OUT.state.pt`` (optimizer moments, random state, iteration) so that ``resume`` continues bit for bit.
 """
 
@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from splat4d.cameras import DatasetView
-from splat4d.checkpoint import load_checkpoint, save_checkpoint
-from splat4d.constants import TEMPORAL_CULL
-from splat4d.covariance import condition_on_time, temporal_marginal
-from splat4d.errors import CheckpointError, OutputExistsError, Splat4DError
-from splat4d.fileio import atomic_path
-from splat4d.model import Gaussians4D
+from splatreel.cameras import DatasetView
+from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.constants import TEMPORAL_CULL
+from splatreel.covariance import condition_on_time, temporal_marginal
+from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
+from splatreel.fileio import atomic_path
+from splatreel.model import Gaussians4D
 
 from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
@@ -47,7 +47,7 @@ def pick_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise Splat4DError("--device cuda requested but no CUDA device is available")
+        raise SplatreelError("--device cuda requested but no CUDA device is available")
     return torch.device(name)
 
 
@@ -145,7 +145,7 @@ class Trainer:
             points, rgb = mesh_points(cfg.init_mesh, cfg.num_gaussians, cfg.seed)
         elif cfg.init == "points":
             if not cfg.init_points:
-                raise Splat4DError("init 'points' needs a point cloud file (--init-points FILE)")
+                raise SplatreelError("init 'points' needs a point cloud file (--init-points FILE)")
             points, rgb = point_cloud_init(Path(cfg.init_points), cfg.num_gaussians, self.ds, self.generator)
         else:
             centre = look_at_centre(self.ds)
@@ -156,7 +156,7 @@ class Trainer:
                 found = carved_init(cfg.num_gaussians, radius, centre, self.ds, self.generator) \
                     if cfg.init_carve else None
             else:
-                raise Splat4DError(f"unknown init {cfg.init!r} (expected ball, frustum or points)")
+                raise SplatreelError(f"unknown init {cfg.init!r} (expected ball, frustum or points)")
             if found is not None:
                 points, t_means = found
             else:
@@ -379,7 +379,7 @@ class Trainer:
                     "alpha_disagreement": round(found.worst_share, 4) if found.checked else None,
                     "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha)}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
-                        provenance={"tool": "splat4d train", "preset": self.cfg.preset}, training=training,
+                        provenance={"tool": "splatreel train", "preset": self.cfg.preset}, training=training,
                         views=[DatasetView(relative_name(v.name, self.ds.root), v.camera, v.time)
                                for v in self.ds.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),

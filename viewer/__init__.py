@@ -1,4 +1,4 @@
-"""Real-time OpenGL viewer and headless renderer for splat4d models.
+"""Real-time OpenGL viewer and headless renderer for splatreel models.
 
 * `SplatRenderer` / `render_image`: the moderngl renderer (EGL offscreen or a window's context).
 * `render_frames` / `render_to_file`: headless video and image output.
@@ -8,7 +8,7 @@
 * `PixelStack` / `PixelHit` (from `SplatRenderer.pick`), `describe`: which Gaussians make a pixel, and what one is.
 * `run_app` / `AppOptions`: the glfw + Dear ImGui desktop app (needs a display).
 
-Names are imported on first use, so that ``splat4d --help`` and light submodules stay fast (numba, moderngl, glfw
+Names are imported on first use, so that ``splatreel --help`` and light submodules stay fast (numba, moderngl, glfw
 and imgui load only when needed). The viewer never imports the trainer.
 """
 

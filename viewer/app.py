@@ -15,14 +15,14 @@ While the view moves or the animation plays, frames are drawn at a lower resolut
 the frame budget (`Resolution`) and stretched to the window; at rest they are sharp again. Screenshots are always
 full resolution.
 
-Editing (the Edit tab): the crop box (`splat4d.model.crop`: the Gaussians whose centre lies in the box when they
+Editing (the Edit tab): the crop box (`splatreel.model.crop`: the Gaussians whose centre lies in the box when they
 show most; the panel copies the box as the ``--crop`` option of convert, render and export) and deleted Gaussians
 (`selection`: a rectangle selects the Gaussians whose centre shows in it at the displayed time). The window shows
 exactly what "Save edited" writes. Unsaved deletions are not dropped silently: opening another file or closing the
 window asks a second time.
 
 Inspect (Ctrl+click, `SplatRenderer.pick`): the Gaussians that make the clicked pixel, ranked by their share of its
-colour, with the chosen one's attributes (`splat4d.viewer.pick.describe`) and its 2-sigma ellipsoid drawn over the
+colour, with the chosen one's attributes (`splatreel.viewer.pick.describe`) and its 2-sigma ellipsoid drawn over the
 model as it moves; the panel can jump to the time it shows most. Measure (Alt+click twice): the distance between the
 surfaces seen at two pixels (`PixelStack.surface_depth`, unprojected).
 """
@@ -40,10 +40,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from splat4d.constants import NEAR_PLANE
-from splat4d.errors import GLError, Splat4DError
-from splat4d.fileio import atomic_path, atomic_write_json
-from splat4d.model import CropBox, crop_mask
+from splatreel.constants import NEAR_PLANE
+from splatreel.errors import GLError, SplatreelError
+from splatreel.fileio import atomic_path, atomic_write_json
+from splatreel.model import CropBox, crop_mask
 
 from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution, scaled_size
@@ -60,7 +60,7 @@ from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudi
 
 @dataclass
 class AppOptions:
-    """Start-up settings of the desktop app (the ``splat4d view`` options)."""
+    """Start-up settings of the desktop app (the ``splatreel view`` options)."""
 
     size: tuple[int, int] = (1280, 720)
     up: str = "z"
@@ -122,12 +122,12 @@ class _PathEditor:
     time: float = 0.0
     overwrite: bool = False
     show: bool = True
-    #: what Save writes: a splat4d path (keyframes) or a nerfstudio one (frames at 30 FPS, for ns-render)
+    #: what Save writes: a splatreel path (keyframes) or a nerfstudio one (frames at 30 FPS, for ns-render)
     nerfstudio: bool = False
 
 
 #: Save's formats in the Path tab, in `_PathEditor.nerfstudio` order
-PATH_FORMATS = ("splat4d keys", "nerfstudio frames")
+PATH_FORMATS = ("splatreel keys", "nerfstudio frames")
 
 
 @dataclass
@@ -239,7 +239,7 @@ def camera_to_json(camera) -> dict:
 
 def camera_from_json(data: dict):
     """The camera `camera_to_json` wrote (e.g. a report's, to render its view headless)."""
-    from splat4d.cameras import Camera
+    from splatreel.cameras import Camera
 
     return Camera(np.array(data["c2w"]), data["fx"], data["fy"], data["cx"], data["cy"], data["width"],
                   data["height"])
@@ -294,13 +294,13 @@ class ViewerApp:
             glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
             glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
             w, h = self.options.size
-            window = glfw.create_window(w, h, "splat4d", None, None)
+            window = glfw.create_window(w, h, "splatreel", None, None)
             if not window:
                 raise GLError("could not open an OpenGL 3.3 core window")
         except glfw.GLFWError as exc:
             glfw.terminate()
             msg = re.sub(r"^\(\d+\)\s*", "", str(exc).replace("b'", "").rstrip("'")).strip()
-            raise GLError(f"cannot open a window: {msg} (run under a desktop or Xvfb, or use `splat4d render`)") \
+            raise GLError(f"cannot open a window: {msg} (run under a desktop or Xvfb, or use `splatreel render`)") \
                 from None
         glfw.ERROR_REPORTING = "warn"
         self._window = window
@@ -324,7 +324,7 @@ class ViewerApp:
 
     def load(self, source) -> None:
         """Show a model file (or `Checkpoint`); on failure keep the current model and report the error."""
-        from splat4d.formats import load_model
+        from splatreel.formats import load_model
 
         ckpt = load_model(source) if isinstance(source, (str, os.PathLike)) else source
         model = ckpt.model
@@ -344,7 +344,7 @@ class ViewerApp:
         self._measure = _Measure()  # points on the previous model
         try:
             shown = self._apply_edits(start)
-        except Splat4DError:  # e.g. too large for this GPU: back to the model shown before, edits and all
+        except SplatreelError:  # e.g. too large for this GPU: back to the model shown before, edits and all
             if first_load:
                 raise
             for k, v in before.items():
@@ -434,7 +434,7 @@ class ViewerApp:
         """The loaded model's index of the Gaussian shown in the Inspect tab."""
         hit = self._inspect.hit
         if hit is None:
-            raise Splat4DError("Ctrl+click the model first: nothing is inspected")
+            raise SplatreelError("Ctrl+click the model first: nothing is inspected")
         return int(self._editor.shown_index[hit.index])
 
     def select_inspected(self) -> None:
@@ -446,7 +446,7 @@ class ViewerApp:
         """Delete the selected Gaussians (Undo brings them back); returns how many."""
         count = self._editor.edits.delete_selected()
         if not count:
-            raise Splat4DError("nothing is selected: Shift+drag over the model, or Select in the Inspect tab")
+            raise SplatreelError("nothing is selected: Shift+drag over the model, or Select in the Inspect tab")
         self._edited(f"deleted {count:,} Gaussian(s)")
         return count
 
@@ -461,13 +461,13 @@ class ViewerApp:
 
     def _undo(self) -> None:
         if not self._editor.edits.undo():
-            raise Splat4DError("nothing to undo")
+            raise SplatreelError("nothing to undo")
         self._edited("undid the last deletion")
 
     def _restore_all(self) -> None:
         count = self._editor.edits.restore_all()
         if not count:
-            raise Splat4DError("nothing is deleted")
+            raise SplatreelError("nothing is deleted")
         self._edited(f"restored {count:,} Gaussian(s) (Undo deletes them again)")
 
     def _delete_inspected(self) -> None:
@@ -516,7 +516,7 @@ class ViewerApp:
         stack = self.renderer.pick(camera, t, x, y, self.settings)
         depth = stack.surface_depth
         if depth is None:
-            raise Splat4DError(f"pixel ({x}, {y}) shows no surface to measure from (background)")
+            raise SplatreelError(f"pixel ({x}, {y}) shows no surface to measure from (background)")
         point = camera.unproject([[x + 0.5, y + 0.5]], [depth])[0]
         m = self._measure
         if len(m.points) == 2:
@@ -553,7 +553,7 @@ class ViewerApp:
     def _save_edited(self) -> None:
         """Write what the window shows: the model cropped to the box (when on) without its deleted Gaussians, with
         both edits in the provenance ("crop": the box; "deleted": Gaussians deleted by hand inside it)."""
-        from splat4d.checkpoint import save_checkpoint
+        from splatreel.checkpoint import save_checkpoint
 
         ed, ckpt, n = self._editor, self.checkpoint, len(self.model)
         box = self._crop.shown
@@ -561,9 +561,9 @@ class ViewerApp:
         model = self.renderer.model  # `_apply_edits` made it: the box's Gaussians less the deleted ones
         deleted = int(np.count_nonzero(in_box & ed.edits.deleted))
         if box is None and not deleted:
-            raise Splat4DError("nothing to save: turn on 'crop to box' or delete Gaussians first")
+            raise SplatreelError("nothing to save: turn on 'crop to box' or delete Gaussians first")
         if not len(model):
-            raise Splat4DError("the edits leave no Gaussians to save")
+            raise SplatreelError("the edits leave no Gaussians to save")
         provenance = dict(ckpt.provenance or {})
         if box is not None:
             provenance["crop"] = box.provenance(int(in_box.sum()), n)
@@ -591,7 +591,7 @@ class ViewerApp:
             return []
         try:
             return dataset_views(root, "train")
-        except Splat4DError:
+        except SplatreelError:
             return []
 
     # --- main loop ----------------------------------------------------------------------------------------------
@@ -680,7 +680,7 @@ class ViewerApp:
         """Run a user action; its one-line error (or `done`) goes to the panel's status line. True on success."""
         try:
             action()
-        except Splat4DError as exc:
+        except SplatreelError as exc:
             self.status = f"error: {exc}"
             return False
         if done:
@@ -842,7 +842,7 @@ class ViewerApp:
     def _next_screenshot_name(self) -> str:
         folder = Path(self.options.screenshot_dir)
         for i in range(1, 100000):
-            p = folder / f"splat4d_{i:04d}.png"
+            p = folder / f"splatreel_{i:04d}.png"
             if not p.exists():
                 return str(p)
         raise GLError(f"{folder}: too many screenshots")
@@ -922,7 +922,7 @@ class ViewerApp:
 
         imgui.set_next_window_pos((10, 10), imgui.Cond_.first_use_ever)
         imgui.set_next_window_size((370, 0), imgui.Cond_.first_use_ever)
-        imgui.begin("splat4d")
+        imgui.begin("splatreel")
         st, pb = self._stats, self.playback
         imgui.text(f"{imgui.get_io().framerate:5.1f} FPS  frame {st.frame_ms:5.1f} ms")
         imgui.text(f"sort {st.sort_ms:5.1f} ms  draw {st.frame.draw_ms + st.frame.upload_ms:5.1f} ms")
@@ -1102,11 +1102,11 @@ class ViewerApp:
         pe.nerfstudio = bool(fmt)
         if imgui.is_item_hovered():
             imgui.set_tooltip("nerfstudio: the path sampled at 30 FPS with each frame's scene time, for ns-render "
-                              "camera-path (e.g. a dynamic NeRF of the same data); splat4d reads both")
+                              "camera-path (e.g. a dynamic NeRF of the same data); splatreel reads both")
 
     def _path_or_error(self) -> CameraPath:
         if self._path.path is None:
-            raise Splat4DError("no camera path: Add key, or Load a path file")
+            raise SplatreelError("no camera path: Add key, or Load a path file")
         return self._path.path
 
     def _toggle_path(self) -> None:
@@ -1118,7 +1118,7 @@ class ViewerApp:
         pe.time, pe.playing = self._path_or_error().start, True
 
     def _save_path(self) -> None:
-        """Write the edited path to the path file: its keys (splat4d), or its frames at the window's size (nerfstudio,
+        """Write the edited path to the path file: its keys (splatreel), or its frames at the window's size (nerfstudio,
         `path_as_nerfstudio`)."""
         pe = self._path
         self._path_or_error()
@@ -1155,7 +1155,7 @@ class ViewerApp:
         if imgui.button("Copy option"):
             imgui.set_clipboard_text(option)
         if imgui.is_item_hovered():
-            imgui.set_tooltip(f"{option}\n(for splat4d convert / render / view)")
+            imgui.set_tooltip(f"{option}\n(for splatreel convert / render / view)")
 
         imgui.separator_text("Delete Gaussians")
         imgui.text_wrapped("Shift+drag: select what shows in a rectangle now (Shift+Alt+drag: unselect); "

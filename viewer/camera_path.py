@@ -1,9 +1,9 @@
-"""Keyframed camera paths: the JSON file shared by the desktop app (record / save / load) and `splat4d render`.
+"""Keyframed camera paths: the JSON file shared by the desktop app (record / save / load) and `splatreel render`.
 
 File format (``.json``; README.md, "Camera path files")::
 
     {
-      "format": "splat4d-camera-path", "version": 1,
+      "format": "splatreel-camera-path", "version": 1,
       "up": "z",                       # world up for look-at keys: "x", "y", "z", "-x", "-y", "-z" or [x, y, z]
       "loop": false,                   # true: the path closes back to its first key (periodic)
       "keyframes": [
@@ -15,17 +15,17 @@ File format (``.json``; README.md, "Camera path files")::
 * ``time``: seconds along the path (strictly increasing).
 * ``position``: camera centre in world units.
 * orientation: either ``look_at`` (a world point; the camera's up is the path's ``up``) or ``quaternion``, the
-  camera-to-world rotation in **OpenCV camera axes** (x right, y down, z forward), w first (as `splat4d.cameras`).
+  camera-to-world rotation in **OpenCV camera axes** (x right, y down, z forward), w first (as `splatreel.cameras`).
 * ``fov``: vertical field of view in degrees (optional, default 40).
 * ``scene_time``: optional model time shown at this key (used when rendering with ``--time-mode path``); it is
   interpolated linearly and only used when every key has one.
 
 Interpolation: position by a cubic Hermite spline with Catmull-Rom tangents scaled for the key spacing (it passes
-through every key), orientation by slerp (`splat4d.quaternion.slerp`) between consecutive keys, fov and scene time
+through every key), orientation by slerp (`splatreel.quaternion.slerp`) between consecutive keys, fov and scene time
 linearly. A looping path adds a closing segment from the last key back to the first, lasting the mean key spacing.
 
 Optional top-level ``"image_size": [width, height]``, ``"fps"`` and ``"projection"`` (``"perspective"``, the
-default, or ``"equirect"`` for 360° panoramas) say how the path is meant to be rendered (`splat4d render` uses
+default, or ``"equirect"`` for 360° panoramas) say how the path is meant to be rendered (`splatreel render` uses
 them when ``--size`` / ``--fps`` / ``--projection`` are not given).
 
 `CameraPath.load` also reads **nerfstudio camera paths** (``ns-render --camera-path-filename``; written by the
@@ -46,14 +46,17 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from splat4d import quaternion
-from splat4d.cameras import Camera, DatasetView, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
-from splat4d.errors import CameraError
-from splat4d.fileio import atomic_write_json
+from splatreel import quaternion
+from splatreel.checkpoint import LEGACY_NAME
+from splatreel.cameras import Camera, DatasetView, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
+from splatreel.errors import CameraError
+from splatreel.fileio import atomic_write_json
 
 from .panorama import PROJECTIONS
 
-FORMAT_NAME = "splat4d-camera-path"
+FORMAT_NAME = "splatreel-camera-path"
+#: the name paths written before the rename carry; still read
+_LEGACY_FORMAT_NAME = f"{LEGACY_NAME}-camera-path"
 FORMAT_VERSION = 1
 #: nerfstudio's camera_type -> ours (`panorama.PROJECTIONS`), and back
 _NERFSTUDIO_PROJECTIONS = {"perspective": "perspective", "equirectangular": "equirect"}
@@ -177,7 +180,7 @@ class CameraPath:
     #: how the path is meant to be rendered, when its file says: (width, height) and frames per second
     image_size: tuple[int, int] | None = None
     fps: float | None = None
-    #: "perspective", or "equirect" for a path of 360° panoramas (`splat4d.viewer.panorama`)
+    #: "perspective", or "equirect" for a path of 360° panoramas (`splatreel.viewer.panorama`)
     projection: str = "perspective"
     _times: np.ndarray = field(init=False, repr=False)
 
@@ -297,17 +300,17 @@ class CameraPath:
     @classmethod
     def from_json(cls, data, source: str = "camera path",
                   time_range: tuple[float, float] | None = None) -> "CameraPath":
-        """A path from its JSON: splat4d's format, or nerfstudio's (`from_nerfstudio`; `time_range` maps its
+        """A path from its JSON: splatreel's format, or nerfstudio's (`from_nerfstudio`; `time_range` maps its
         normalised times)."""
         if not isinstance(data, dict):
             raise CameraError(f"{source}: expected a JSON object")
         if "format" not in data and "camera_path" in data:
             return cls.from_nerfstudio(data, source, time_range)
-        if data.get("format", FORMAT_NAME) != FORMAT_NAME:
-            raise CameraError(f"{source}: not a splat4d camera path (format {data.get('format')!r})")
+        if data.get("format", FORMAT_NAME) not in (FORMAT_NAME, _LEGACY_FORMAT_NAME):
+            raise CameraError(f"{source}: not a splatreel camera path (format {data.get('format')!r})")
         version = data.get("version", FORMAT_VERSION)
         if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise CameraError(f"{source}: camera path version {version!r} is newer than this splat4d reads")
+            raise CameraError(f"{source}: camera path version {version!r} is newer than this splatreel reads")
         keys = data.get("keyframes")
         if not isinstance(keys, list) or not keys:
             raise CameraError(f"{source}: 'keyframes' must be a non-empty list")
@@ -396,7 +399,7 @@ class CameraPath:
 
     @classmethod
     def load(cls, path: str | os.PathLike, time_range: tuple[float, float] | None = None) -> "CameraPath":
-        """Read a path file (splat4d's or nerfstudio's; `time_range`: the model's, for nerfstudio's normalised
+        """Read a path file (splatreel's or nerfstudio's; `time_range`: the model's, for nerfstudio's normalised
         times)."""
         path = Path(path)
         if not path.is_file():
@@ -469,7 +472,7 @@ def _image_size(root: Path, frame: dict, meta: dict) -> tuple[int, int] | None:
 
 def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[DatasetView]:
     """Cameras of a D-NeRF / Blender layout dataset (``transforms_<split>.json``; ``split=None``: all splits), or
-    the training cameras a splat4d checkpoint (``.safetensors``) records (`recorded_views`; any layout it was
+    the training cameras a splatreel checkpoint (``.safetensors``) records (`recorded_views`; any layout it was
     trained on, `split` aside).
 
     Poses are OpenGL camera-to-world ``transform_matrix``; intrinsics come from ``fl_x/fl_y/cx/cy`` or
@@ -502,17 +505,17 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
 
 
 def recorded_views(path: str | os.PathLike) -> list[DatasetView]:
-    """The training cameras recorded in the splat4d checkpoint `path` (`splat4d.checkpoint`), read from its
+    """The training cameras recorded in the splatreel checkpoint `path` (`splatreel.checkpoint`), read from its
     metadata alone; CameraError (one line) when it records none."""
-    from splat4d.checkpoint import read_metadata, views_in_metadata
-    from splat4d.errors import CheckpointError
+    from splatreel.checkpoint import read_metadata, views_in_metadata
+    from splatreel.errors import CheckpointError
 
     try:
         views = views_in_metadata(read_metadata(path), path)
     except CheckpointError as exc:
         raise CameraError(str(exc)) from None
     if not views:
-        raise CameraError(f"{path}: records no training cameras (written by an importer, or by splat4d train "
+        raise CameraError(f"{path}: records no training cameras (written by an importer, or by splatreel train "
                           "before it recorded them); give the dataset folder instead")
     return views
 

@@ -1,7 +1,7 @@
 """Interactive camera and playback state of the desktop app (pure math: no window, no GL).
 
 `CameraController` keeps a look-at rig: a target point, a distance, and the eye's azimuth/elevation around the
-target in the world-up frame of `splat4d.cameras.orbit_position`. Orbit rotates the eye around the target, pan
+target in the world-up frame of `splatreel.cameras.orbit_position`. Orbit rotates the eye around the target, pan
 slides both, zoom changes the distance, fly (WASD/QE) moves both along the view axes and mouse-look turns the view
 around the eye. Snapping to a dataset camera shows that exact pose (roll and intrinsics' FOV included) until the
 next interaction.
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from splat4d.cameras import UP_AXES, Camera, look_at, orbit_position
+from splatreel.cameras import UP_AXES, Camera, look_at, orbit_position
 
 from .trajectory import Framing
 

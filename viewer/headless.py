@@ -3,7 +3,7 @@
 Each frame is sorted synchronously at its own (camera, t) before it is drawn, so no frame ever shows a stale order.
 The depth mode's colour map spans one range for the whole sequence (`sequence_depth_range`), so colours do not
 flicker from frame to frame. With an `Equirect`, each frame is a 360° panorama assembled from six cube faces drawn
-from the frame camera's position (`splat4d.viewer.panorama`).
+from the frame camera's position (`splatreel.viewer.panorama`).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from typing import Iterator, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from splat4d.cameras import Camera
-from splat4d.errors import CameraError
+from splatreel.cameras import Camera
+from splatreel.errors import CameraError
 
 from .output import open_output
 from .panorama import Equirect

@@ -1,17 +1,17 @@
-"""Parsing of the options shared by ``splat4d view`` and ``splat4d render`` (sizes, colours, vectors)."""
+"""Parsing of the options shared by ``splatreel view`` and ``splatreel render`` (sizes, colours, vectors)."""
 
 from __future__ import annotations
 
 import argparse
 import math
 
-from splat4d.errors import Splat4DError
+from splatreel.errors import SplatreelError
 
 _NAMED_COLORS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "grey": (0.5, 0.5, 0.5),
                  "gray": (0.5, 0.5, 0.5)}
 
 
-class OptionError(Splat4DError):
+class OptionError(SplatreelError):
     """A command-line value that cannot be parsed."""
 
 
@@ -103,10 +103,10 @@ def parse_positive(text: str) -> float:
 
 
 def add_footprint_args(parser: argparse.ArgumentParser) -> None:
-    """Which splats reach the screen and how far (`splat4d.viewer.sorting.Footprint`): the near plane and the
+    """Which splats reach the screen and how far (`splatreel.viewer.sorting.Footprint`): the near plane and the
     performance guards, the trainer's by default (other values change the image)."""
-    from splat4d.constants import NEAR_PLANE
-    from splat4d.covariance import TEMPORAL_FADES
+    from splatreel.constants import NEAR_PLANE
+    from splatreel.covariance import TEMPORAL_FADES
 
     parser.add_argument("--near-plane", type=argtype(parse_positive), default=NEAR_PLANE, metavar="D",
                         help=f"Gaussians closer to the camera than this depth are not drawn (default {NEAR_PLANE:g}, "

@@ -4,7 +4,7 @@ Frames arrive as the renderer's display images: ``[H, W, 4]`` float32 RGBA, top 
 by alpha (alpha is 1 everywhere over an opaque background). What each format stores:
 
 * ``.mp4``: H.264 (libx264), yuv420p 8-bit, opaque (no alpha channel; even width and height).
-  360° panoramas (.mp4 and .mov) carry the spherical-video tag (`splat4d.viewer.spherical`).
+  360° panoramas (.mp4 and .mov) carry the spherical-video tag (`splatreel.viewer.spherical`).
 * ``.mov``: Apple ProRes (prores_ks), 10-bit: 422 HQ over an opaque background, 4444 with an alpha channel over a
   transparent one: the intermediate that editors and compositors (Resolve, Premiere, After Effects, Nuke) read.
 * ``.webm``: VP9 (libvpx), yuv420p, or yuva420p with alpha over a transparent background, which browsers play
@@ -17,7 +17,7 @@ Video alpha is straight, as ffmpeg and the players expect. Every video is conver
 and tagged BT.709 (primaries, transfer, matrix, limited range), so players show the rendered sRGB colours as they
 are instead of guessing the matrix of an untagged file.
 
-Every output is written atomically (`splat4d.fileio`) and an existing one is refused without ``force``.
+Every output is written atomically (`splatreel.fileio`) and an existing one is refused without ``force``.
 """
 
 from __future__ import annotations
@@ -32,15 +32,15 @@ from typing import Iterator
 
 import numpy as np
 
-from splat4d.errors import Splat4DError
-from splat4d.fileio import atomic_dir, atomic_path, check_writable
+from splatreel.errors import SplatreelError
+from splatreel.fileio import atomic_dir, atomic_path, check_writable
 
 from .spherical import TAGGABLE_SUFFIXES, SphericalTagError, tag_equirectangular
 
 IMAGE_SUFFIXES = (".png", ".exr")
 
 
-class OutputError(Splat4DError):
+class OutputError(SplatreelError):
     """An output file name, format or size that cannot be written."""
 
 
@@ -247,7 +247,7 @@ def open_output(out: str | os.PathLike, width: int, height: int, fps: float, tra
         image_format: "png" or "exr", for sequences.
         frames: how many frames will come, if known: a single image refuses more than one before any is drawn.
         spherical: the frames are equirectangular 360° panoramas: an .mp4 / .mov gets the spherical-video tag
-            (`splat4d.viewer.spherical`) so that players show it as a panorama.
+            (`splatreel.viewer.spherical`) so that players show it as a panorama.
     """
     kind = output_kind(out)
     path = Path(out)

@@ -13,8 +13,8 @@ from typing import Sequence
 
 import numpy as np
 
-from splat4d.cameras import Camera
-from splat4d.gl import load_program
+from splatreel.cameras import Camera
+from splatreel.gl import load_program
 
 from .camera_path import CameraPath
 

@@ -20,8 +20,8 @@ from functools import cached_property
 
 import numpy as np
 
-from splat4d.cameras import Camera
-from splat4d.errors import CameraError
+from splatreel.cameras import Camera
+from splatreel.errors import CameraError
 
 #: How frames are formed: a pinhole camera, or a 360° equirectangular panorama from the camera's position.
 PROJECTIONS = ("perspective", "equirect")

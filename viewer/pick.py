@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from splat4d.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
-from splat4d.covariance import condition_on_time, temporal_factor, temporal_marginal, visible_span
-from splat4d.model import Gaussians3D, Gaussians4D
+from splatreel.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
+from splatreel.covariance import condition_on_time, temporal_factor, temporal_marginal, visible_span
+from splatreel.model import Gaussians3D, Gaussians4D
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,7 @@ def describe(model, index: int, t: float, fade: str = "cut") -> list[tuple[str, 
 def inspect_gaussian(model, index: int, t: float, fade: str = "cut") -> tuple[list[tuple[str, str]], Gaussians3D]:
     """(`describe`'s rows, the one-Gaussian slice they were read from) of Gaussian `index` at time `t`: the slice
     also gives the app the ellipsoid to draw. The opacity at t is the one drawn with the temporal `fade`
-    (`splat4d.covariance.temporal_factor`)."""
+    (`splatreel.covariance.temporal_factor`)."""
     one = model.select(torch.tensor([int(index)]))
     with torch.no_grad():
         g = one.slice(float(t))

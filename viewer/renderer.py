@@ -4,7 +4,7 @@ Per frame, three GL passes:
 
 1. **pre-pass** (``shaders/splat_preprocess.glsl``): one vertex-shader invocation per drawn Gaussian evaluates the
    model at time t and projects it; the Gaussians are fed as GL_POINTS through an index buffer holding the depth
-   order at t (`splat4d.viewer.sorting`), and transform feedback writes their 2D footprints in that order. Doing
+   order at t (`splatreel.viewer.sorting`), and transform feedback writes their 2D footprints in that order. Doing
    this once per Gaussian instead of once per quad corner is what makes a software rasterizer (Mesa llvmpipe)
    usable.
 2. **draw** (``splat_draw.glsl``): one splat per footprint, a GL point sprite over its bounding box or an
@@ -31,11 +31,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from splat4d.cameras import Camera
-from splat4d.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TILE_SIZE
-from splat4d.covariance import check_fade
-from splat4d.errors import GLError
-from splat4d.gl import EGLCurrent, create_headless_context, load_program, with_context
+from splatreel.cameras import Camera
+from splatreel.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TILE_SIZE
+from splatreel.covariance import check_fade
+from splatreel.errors import GLError
+from splatreel.gl import EGLCurrent, create_headless_context, load_program, with_context
 
 from . import splats as splatlib
 from .pick import PixelStack, composite_pixel
@@ -111,7 +111,7 @@ class RenderSettings:
             see `Footprint`.
         max_screen_radius: cap on a splat's radius as a share of the image height (None = none).
         near_plane: Gaussians at or in front of this camera depth are not drawn (the trainer's NEAR_PLANE, 0.2).
-        temporal_fade: one of `splat4d.covariance.TEMPORAL_FADES`: "cut" (the reference: a Gaussian drops out once
+        temporal_fade: one of `splatreel.covariance.TEMPORAL_FADES`: "cut" (the reference: a Gaussian drops out once
             its temporal marginal falls to 0.05) or "smooth" (faded out over the marginal's last doubling, so that
             nothing pops as time plays).
     """
@@ -197,7 +197,7 @@ class _Targets:
 
 
 class SplatRenderer:
-    """Draws a splat4d model with a moderngl context (standalone EGL or a window's).
+    """Draws a splatreel model with a moderngl context (standalone EGL or a window's).
 
     Typical use::
 
@@ -624,7 +624,7 @@ class SplatRenderer:
     @with_context
     def pick(self, camera: Camera, t: float, x: int, y: int, settings: RenderSettings | None = None) -> PixelStack:
         """The Gaussians that make pixel (x, y) (column, row from the top left) of `camera`'s image at time `t`,
-        nearest first with their weights (`splat4d.viewer.pick`). Runs the pre-pass on the Gaussians whose screen
+        nearest first with their weights (`splatreel.viewer.pick`). Runs the pre-pass on the Gaussians whose screen
         box holds the pixel, so colours and footprints are exactly those drawn (with `settings`' splat scale and
         SH degree; in the colour mode whatever `settings.mode` is)."""
         settings = replace(settings or RenderSettings(), mode="color")

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from splat4d.cameras import Camera
+from splatreel.cameras import Camera
 
 from .sorting import SortResult
 from .splats import SplatArrays

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from splat4d.cameras import Camera
-from splat4d.constants import (ALPHA_THRESHOLD, EPS2D, FRUSTUM_CLAMP, MAX_ALPHA, NEAR_PLANE, TEMPORAL_CULL,
+from splatreel.cameras import Camera
+from splatreel.constants import (ALPHA_THRESHOLD, EPS2D, FRUSTUM_CLAMP, MAX_ALPHA, NEAR_PLANE, TEMPORAL_CULL,
                                TRANSMITTANCE_THRESHOLD)
 
 from .splats import SplatArrays
@@ -390,7 +390,7 @@ class AsyncSorter:
         self._busy = False
         self._closed = False
         self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._loop, name="splat4d-sort", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name="splatreel-sort", daemon=True)
         self._thread.start()
 
     def request(self, splats: SplatArrays, camera: Camera, t: float, footprint: Footprint = Footprint(),

@@ -17,18 +17,18 @@ import shutil
 import struct
 from pathlib import Path
 
-from splat4d.errors import Splat4DError
-from splat4d.fileio import atomic_path
+from splatreel.errors import SplatreelError
+from splatreel.fileio import atomic_path
 
 SPHERICAL_UUID = bytes.fromhex("ffcc8263f8554a938814587a02521fdd")
-#: what the tag says: stitched (one image per frame), equirectangular, made by splat4d
+#: what the tag says: stitched (one image per frame), equirectangular, made by splatreel
 SPHERICAL_XML = (
     '<?xml version="1.0"?>'
     '<rdf:SphericalVideo xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#" '
     'xmlns:GSpherical="http://ns.google.com/videos/1.0/spherical/">'
     "<GSpherical:Spherical>true</GSpherical:Spherical>"
     "<GSpherical:Stitched>true</GSpherical:Stitched>"
-    "<GSpherical:StitchingSoftware>splat4d</GSpherical:StitchingSoftware>"
+    "<GSpherical:StitchingSoftware>splatreel</GSpherical:StitchingSoftware>"
     "<GSpherical:ProjectionType>equirectangular</GSpherical:ProjectionType>"
     "</rdf:SphericalVideo>")
 #: the containers of ISO-BMFF that lead from ``moov`` to the chunk offsets and the handler
@@ -37,7 +37,7 @@ _CONTAINERS = {b"moov", b"trak", b"mdia", b"minf", b"stbl"}
 TAGGABLE_SUFFIXES = (".mp4", ".mov")
 
 
-class SphericalTagError(Splat4DError):
+class SphericalTagError(SplatreelError):
     """A file whose box structure cannot be tagged (not ISO-BMFF / QuickTime, or no video track)."""
 
 

@@ -1,7 +1,7 @@
 """Per-Gaussian arrays in the layout the GL renderer uploads (one instance per Gaussian).
 
 A native 4D model is converted **once**: everything that does not depend on t (the conditional covariance, the
-velocity of the conditional mean, the temporal variance; `splat4d.covariance.condition_on_time`) is computed here
+velocity of the conditional mean, the temporal variance; `splatreel.covariance.condition_on_time`) is computed here
 on the CPU, and the vertex shader only evaluates the t-dependent part each frame (mean moving linearly in t,
 temporal opacity factor and its cull, SH with the cosine time terms). A keyframed model has no closed form in t,
 so its slice at t (`KeyframedGaussians.slice`) is converted instead, once per displayed time.
@@ -24,10 +24,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from splat4d import sh as shlib
-from splat4d.covariance import condition_on_time
-from splat4d.errors import ModelError
-from splat4d.model import Gaussians3D, Gaussians4D, KeyframedGaussians
+from splatreel import sh as shlib
+from splatreel.covariance import condition_on_time
+from splatreel.errors import ModelError
+from splatreel.model import Gaussians3D, Gaussians4D, KeyframedGaussians
 
 _COV_TRIU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 

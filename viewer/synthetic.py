@@ -1,7 +1,7 @@
 """Synthetic native 4D models with known motion, for benchmarks, tests and trying the viewer without data.
 
 `synthetic_model` places Gaussians in a ball, gives each a random 3D shape, a constant velocity and a temporal
-extent, and turns that into native 4D parameters through `splat4d.covariance.covariance_4d_from_motion` and
+extent, and turns that into native 4D parameters through `splatreel.covariance.covariance_4d_from_motion` and
 `decompose_covariance_4d`, so slicing the result reproduces exactly the motion that was asked for.
 """
 
@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import torch
 
-from splat4d import quaternion, sh
-from splat4d.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
-from splat4d.model import Gaussians4D
+from splatreel import quaternion, sh
+from splatreel.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.model import Gaussians4D
 
 
 def synthetic_model(num_gaussians: int, seed: int = 0, radius: float = 0.5, scale: float = 0.01,

@@ -25,9 +25,9 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from splat4d.cameras import Camera, look_at, orbit_position
-from splat4d.errors import CameraError
-from splat4d.model import model_bounds
+from splatreel.cameras import Camera, look_at, orbit_position
+from splatreel.errors import CameraError
+from splatreel.model import model_bounds
 
 from .camera_path import CameraPath, nerfstudio_camera_path
 
@@ -52,7 +52,7 @@ FRAMING_QUANTILE = 0.005
 
 
 def model_extent(model) -> tuple[np.ndarray, np.ndarray]:
-    """(min, max) corners of a model's bounds over time (`splat4d.model.model_bounds`), leaving out the outermost
+    """(min, max) corners of a model's bounds over time (`splatreel.model.model_bounds`), leaving out the outermost
     FRAMING_QUANTILE of its means per axis: a handful of floaters does not stretch them."""
     with torch.no_grad():
         lo, hi = model_bounds(model, quantile=FRAMING_QUANTILE)

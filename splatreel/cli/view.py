@@ -1,4 +1,4 @@
-"""``splat4d view CKPT``: the interactive desktop viewer (glfw window + Dear ImGui panel)."""
+"""``splatreel view CKPT``: the interactive desktop viewer (glfw window + Dear ImGui panel)."""
 
 from __future__ import annotations
 
@@ -18,24 +18,24 @@ Drop a model file on the window to open it. Needs a display (run under Xvfb on a
 With no CKPT it opens the bundled trained 'spinner' sample.
 
 examples:
-  splat4d view
-  splat4d view model.safetensors
-  splat4d view model.safetensors --cameras data/spinner --background white
-  splat4d view model.safetensors --path tour.json --paused --time 0.25
-  splat4d view model.safetensors --crop -0.5 -0.5 0 0.5 0.5 1     (the panel's crop box on, at this box)
-  splat4d view model.safetensors --paused --time 0.3 --inspect 640,360 --exit-after 2 --report px.json
+  splatreel view
+  splatreel view model.safetensors
+  splatreel view model.safetensors --cameras data/spinner --background white
+  splatreel view model.safetensors --path tour.json --paused --time 0.25
+  splatreel view model.safetensors --crop -0.5 -0.5 0 0.5 0.5 1     (the panel's crop box on, at this box)
+  splatreel view model.safetensors --paused --time 0.3 --inspect 640,360 --exit-after 2 --report px.json
       (which Gaussians make the window's centre pixel at t = 0.3, and the largest one's attributes)
-  splat4d view model.safetensors --paused --time 0.3 --select 0,0,200,720   (the left edge's floaters selected)
+  splatreel view model.safetensors --paused --time 0.3 --select 0,0,200,720   (the left edge's floaters selected)
 """
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import add_footprint_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
+    from splatreel.viewer.options import add_footprint_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
 
     from ._crop import add_crop_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
-                   help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
+                   help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
                    help="window size (default 1280x720)")
     p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
@@ -55,7 +55,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="seconds per pass through the time range at speed 1 (default 2)")
     p.add_argument("--cameras", metavar="DATASET",
                    help="training dataset whose cameras can be snapped to: a D-NeRF layout folder or transforms "
-                        "json, or a splat4d checkpoint recording them (default: those the model's own checkpoint "
+                        "json, or a splatreel checkpoint recording them (default: those the model's own checkpoint "
                         "records, else its dataset folder)")
     p.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
     p.add_argument("--path", metavar="JSON", help="camera path to load (play it from the panel)")
@@ -89,20 +89,20 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from splat4d.fileio import check_writable
-    from splat4d.formats import load_model
-    from splat4d.samples.trained import trained_checkpoint
-    from splat4d.viewer.app import AppOptions, run_app
-    from splat4d.viewer.camera_path import CameraPath, dataset_views
-    from splat4d.viewer.controls import RESOLUTION_STEPS
-    from splat4d.viewer.options import OptionError, parse_background
-    from splat4d.viewer.renderer import RenderSettings
+    from splatreel.fileio import check_writable
+    from splatreel.formats import load_model
+    from splatreel.samples.trained import trained_checkpoint
+    from splatreel.viewer.app import AppOptions, run_app
+    from splatreel.viewer.camera_path import CameraPath, dataset_views
+    from splatreel.viewer.controls import RESOLUTION_STEPS
+    from splatreel.viewer.options import OptionError, parse_background
+    from splatreel.viewer.renderer import RenderSettings
 
     from ._crop import check_crop
 
     bg, transparent = parse_background(args.background)
     if transparent:
-        raise OptionError("the window cannot show a transparent background; use `splat4d render` for alpha output")
+        raise OptionError("the window cannot show a transparent background; use `splatreel render` for alpha output")
     if args.screenshot and args.exit_after is None:
         raise OptionError("--screenshot needs --exit-after (press P for screenshots while viewing)")
     if args.play_path and not args.path:

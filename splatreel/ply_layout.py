@@ -1,5 +1,5 @@
 """The standard 3DGS PLY column layout (graphdeco-inria ``GaussianModel.save_ply``), in one place for the PLY
-exporter (`splat4d.export.ply`) and importer (`splat4d.importers.ply`), on numpy arrays (no USD needed).
+exporter (`splatreel.export.ply`) and importer (`splatreel.importers.ply`), on numpy arrays (no USD needed).
 
 Column layout (binary_little_endian 1.0, one ``element vertex N``, every property ``float``)::
 

@@ -1,8 +1,8 @@
 """OpenGL plumbing shared by everything that draws: headless (EGL) contexts and GLSL program loading.
 
-Shaders live in ``shaders/`` (installed as the package ``splat4d.shaders``), one ``.glsl`` file per program with
+Shaders live in ``shaders/`` (installed as the package ``splatreel.shaders``), one ``.glsl`` file per program with
 ``#if defined VERTEX_SHADER`` / ``#if defined FRAGMENT_SHADER`` sections (the moderngl-window layout).
-`preprocess` puts ``#version`` first, then the stage define, the rendering constants of `splat4d.constants`
+`preprocess` puts ``#version`` first, then the stage define, the rendering constants of `splatreel.constants`
 (so GLSL uses the same numbers as the CPU rasterizer) and caller defines, then ``#line`` so compiler errors point
 at the right line of the file.
 """
@@ -29,9 +29,9 @@ def shader_source(name: str) -> str:
     """Text of ``shaders/<name>.glsl``."""
     fname = name if name.endswith(".glsl") else f"{name}.glsl"
     try:
-        return resources.files("splat4d.shaders").joinpath(fname).read_text()
+        return resources.files("splatreel.shaders").joinpath(fname).read_text()
     except FileNotFoundError:
-        raise ShaderError(f"shader {fname} not found in splat4d.shaders") from None
+        raise ShaderError(f"shader {fname} not found in splatreel.shaders") from None
 
 
 def _glsl_value(v: object) -> str:

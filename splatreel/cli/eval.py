@@ -1,4 +1,4 @@
-"""``splat4d eval CKPT DATA``: render a dataset's test views and score them."""
+"""``splatreel eval CKPT DATA``: render a dataset's test views and score them."""
 
 from __future__ import annotations
 
@@ -22,11 +22,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from splat4d.errors import DatasetError
-    from splat4d.fileio import atomic_write_json, check_writable
-    from splat4d.formats import load_model
-    from splat4d.train.data import load_dataset
-    from splat4d.train.evaluate import evaluate
+    from splatreel.errors import DatasetError
+    from splatreel.fileio import atomic_write_json, check_writable
+    from splatreel.formats import load_model
+    from splatreel.train.data import load_dataset
+    from splatreel.train.evaluate import evaluate
 
     if args.json:
         check_writable(args.json, args.force)

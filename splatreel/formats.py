@@ -1,7 +1,7 @@
-"""Readers for every model file splat4d accepts, chosen by content (not only by extension).
+"""Readers for every model file splatreel accepts, chosen by content (not only by extension).
 
 `load_model` is what every command that takes a checkpoint calls (``info``, ``view``, ``render``, ``export``).
-The splat4d checkpoint is built in; importers of other tools' files register themselves with `register_reader`.
+The splatreel checkpoint is built in; importers of other tools' files register themselves with `register_reader`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def readers() -> list[Reader]:
 
 
 def _register_importers() -> None:
-    """Importers of other tools' files (`splat4d.importers`) register their readers on first use."""
+    """Importers of other tools' files (`splatreel.importers`) register their readers on first use."""
     from . import importers
 
     importers.register()
@@ -54,7 +54,7 @@ def _is_safetensors(path: Path) -> bool:
     return path.suffix == ".safetensors" or (len(head) == 9 and head[8:9] == b"{")
 
 
-register_reader(Reader("splat4d", "splat4d checkpoint (.safetensors)", _is_safetensors,
+register_reader(Reader("splatreel", "splatreel checkpoint (.safetensors)", _is_safetensors,
                        lambda path, **_: load_checkpoint(path)))
 
 

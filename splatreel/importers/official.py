@@ -112,7 +112,7 @@ def sh_layouts(m: int) -> list[tuple[int, int]]:
 def select_sh(coeffs: Tensor, layout: tuple[int, int], degree: int, degree_t: int) -> Tensor:
     """Pick the coefficients the renderer uses: ``[N, M, 3]`` -> ``[N, (degree+1)^2 (degree_t+1), 3]``.
 
-    The stored 4D layout puts time order n at ``n * (L+1)^2 + j``; the result uses splat4d's layout for the
+    The stored 4D layout puts time order n at ``n * (L+1)^2 + j``; the result uses splatreel's layout for the
     (lower) degrees in use.
     """
     deg_max, deg_t_max = layout
@@ -214,7 +214,7 @@ def _from_capture_4d(path: Path, cap, record: ImportRecord, flavour: str) -> Gau
                               f"tuple in the official order?")
     env = get("env_map")
     if isinstance(env, Tensor) and env.numel() > 0:
-        record.warn(f"environment map {list(env.shape)} dropped (splat4d has no environment "
+        record.warn(f"environment map {list(env.shape)} dropped (splatreel has no environment "
                                f"background; the background colour is used instead)")
     active, active_t = _int_entry(path, cap, names, "active_sh_degree"), _int_entry(path, cap, names,
                                                                                     "active_sh_degree_t")

@@ -1,4 +1,4 @@
-"""``splat4d info CKPT``: what a model file holds."""
+"""``splatreel info CKPT``: what a model file holds."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ HELP = "print what a checkpoint or model file holds (count, time range, bounds, 
 def add_args(p: argparse.ArgumentParser) -> None:
     from ..importers import add_import_args
 
-    p.add_argument("checkpoint", metavar="CKPT", help="model file: splat4d .safetensors checkpoint, or any file "
+    p.add_argument("checkpoint", metavar="CKPT", help="model file: splatreel .safetensors checkpoint, or any file "
                    "the importers read (official 4DGS .pth, 4DGaussians/4DGen folder, 3DGS PLY, PLY folder/glob)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_import_args(p)

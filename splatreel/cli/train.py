@@ -1,4 +1,4 @@
-"""``splat4d train DATA --out CKPT``: fit native 4D Gaussians to a multi-view video dataset."""
+"""``splatreel train DATA --out CKPT``: fit native 4D Gaussians to a multi-view video dataset."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 
 ORDER = 20
 HELP = "fit 4D Gaussians to a multi-view video / image-matrix dataset"
-DESCRIPTION = """Fit native 4D Gaussians to a dataset and write a splat4d checkpoint.
+DESCRIPTION = """Fit native 4D Gaussians to a dataset and write a splatreel checkpoint.
 
 Layouts (auto-detected): dnerf (transforms_*.json), orbit (views/<v>/<f>.png + cameras.json), efficient4d
 (<f>.png strips of 16 views), sv4d (*_v00k.mp4). The default preset, auto, reads the data (views per time, an open
@@ -24,7 +24,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.train.config import PRESETS
+    from splatreel.train.config import PRESETS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -84,8 +84,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
     then the command-line overrides."""
     import dataclasses
 
-    from splat4d.train.config import TrainConfig, preset
-    from splat4d.train.recipe import auto_recipe, read_traits
+    from splatreel.train.config import TrainConfig, preset
+    from splatreel.train.recipe import auto_recipe, read_traits
 
     decisions = []
     if resumed:
@@ -148,27 +148,27 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # a time budget covers the whole command
     from pathlib import Path
 
-    from splat4d.checkpoint import read_metadata
-    from splat4d.errors import Splat4DError
-    from splat4d.train.alpha_conflicts import describe
-    from splat4d.train.data import load_dataset
-    from splat4d.train.trainer import Trainer
+    from splatreel.checkpoint import read_metadata
+    from splatreel.errors import SplatreelError
+    from splatreel.train.alpha_conflicts import describe
+    from splatreel.train.data import load_dataset
+    from splatreel.train.trainer import Trainer
 
     for name in ("iters", "downscale", "num_gaussians", "max_gaussians", "batch_size", "stop_at"):
         v = getattr(args, name)
         if v is not None and v < 1:
-            raise Splat4DError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
+            raise SplatreelError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
     for name in ("minutes", "t_scale_init"):
         v = getattr(args, name)
         if v is not None and not (math.isfinite(v) and v > 0):
-            raise Splat4DError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+            raise SplatreelError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
     if args.scale_ratio_weight is not None and not (math.isfinite(args.scale_ratio_weight)
                                                     and args.scale_ratio_weight >= 0):
-        raise Splat4DError(f"--scale-ratio-weight must be >= 0, got {args.scale_ratio_weight}")
+        raise SplatreelError(f"--scale-ratio-weight must be >= 0, got {args.scale_ratio_weight}")
     resumed, recorded_bg = None, None
     if args.resume:
         if not Path(args.out).exists():
-            raise Splat4DError(f"--resume: {args.out} does not exist")
+            raise SplatreelError(f"--resume: {args.out} does not exist")
         meta = read_metadata(args.out)
         resumed = meta.get("training") or None
         if resumed:
@@ -180,20 +180,20 @@ def run(args: argparse.Namespace) -> int:
     if recorded_bg is not None and args.background is None:  # a run keeps the background it started with
         ds.background, ds.background_reason = tuple(float(x) for x in recorded_bg), "the resumed checkpoint's"
     length = f"{cfg.minutes:g} minutes" if cfg.minutes else f"{cfg.iters} iterations"
-    print(f"splat4d train: {ds.summary()}; preset {cfg.preset}, {length}" + (":" if decisions else ""))
+    print(f"splatreel train: {ds.summary()}; preset {cfg.preset}, {length}" + (":" if decisions else ""))
     for d in decisions:
         print(f"  - {d.line(given_value(args, d.option))}")
-    print(f"splat4d train: background {background_name(ds.background)}: {ds.background_reason}"
+    print(f"splatreel train: background {background_name(ds.background)}: {ds.background_reason}"
           + ("" if ds.background_reason == "--background" else "; --background R G B to change"))
     trainer = Trainer(ds, cfg, args.out, resume=args.resume, force=args.force, progress=not args.quiet,
                       started=started)
-    print(f"splat4d train: {describe(trainer.alpha_conflicts, cfg.strict_alpha, ds.train)}")
+    print(f"splatreel train: {describe(trainer.alpha_conflicts, cfg.strict_alpha, ds.train)}")
     try:
         result = trainer.run(stop_at=args.stop_at)
     except KeyboardInterrupt:
-        print(f"splat4d train: interrupted at iteration {trainer.step}; saved {args.out} (continue with --resume)")
+        print(f"splatreel train: interrupted at iteration {trainer.step}; saved {args.out} (continue with --resume)")
         return 130
-    msg = f"splat4d train: wrote {result.out} ({result.n_gaussians:,} Gaussians, {result.iterations} iterations, " \
+    msg = f"splatreel train: wrote {result.out} ({result.n_gaussians:,} Gaussians, {result.iterations} iterations, " \
           f"{result.seconds:.1f} s)"
     done = trainer.finished()
     if not done:
@@ -201,6 +201,6 @@ def run(args: argparse.Namespace) -> int:
     print(msg)
     if done and ds.test:
         ev = trainer.evaluate_test()
-        print(f"splat4d train: test views: PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.4f} "
+        print(f"splatreel train: test views: PSNR {ev['psnr']:.2f} dB, SSIM {ev['ssim']:.4f} "
               f"({ev['num_views']} views)")
     return 0

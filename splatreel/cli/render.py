@@ -1,4 +1,4 @@
-"""``splat4d render CKPT --out FILE``: render a model to video or images through EGL, with no display."""
+"""``splatreel render CKPT --out FILE``: render a model to video or images through EGL, with no display."""
 
 from __future__ import annotations
 
@@ -13,17 +13,17 @@ FILE.png / FILE.exr (one image; EXR keeps alpha), or a folder name without a suf
 --image-format png|exr). Existing outputs are kept unless --force.
 
 examples:
-  splat4d render --out sample.mp4                  (the bundled trained sample)
-  splat4d render model.safetensors --out orbit.mp4
-  splat4d render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
-  splat4d render model.safetensors --out frames --image-format exr --background transparent --frames 48
-  splat4d render model.safetensors --out comp.mov --background transparent     (ProRes 4444 for editors)
-  splat4d render model.safetensors --out core.mp4 --crop -0.5 -0.5 -0.5 0.5 0.5 0.5   (only what is in the box)
-  splat4d render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
-  splat4d render model.safetensors --out tour.mp4 --path tour.json
-  splat4d render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
-  splat4d render model.safetensors --out orbit.mp4 --save-cameras orbit_cameras.json   (the same cameras elsewhere)
-  splat4d render scene.safetensors --out pano.mp4 --projection equirect --path inside.json   (360° video)
+  splatreel render --out sample.mp4                  (the bundled trained sample)
+  splatreel render model.safetensors --out orbit.mp4
+  splatreel render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
+  splatreel render model.safetensors --out frames --image-format exr --background transparent --frames 48
+  splatreel render model.safetensors --out comp.mov --background transparent     (ProRes 4444 for editors)
+  splatreel render model.safetensors --out core.mp4 --crop -0.5 -0.5 -0.5 0.5 0.5 0.5   (only what is in the box)
+  splatreel render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
+  splatreel render model.safetensors --out tour.mp4 --path tour.json
+  splatreel render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
+  splatreel render model.safetensors --out orbit.mp4 --save-cameras orbit_cameras.json   (the same cameras elsewhere)
+  splatreel render scene.safetensors --out pano.mp4 --projection equirect --path inside.json   (360° video)
 """
 
 
@@ -33,13 +33,13 @@ DEFAULT_FPS = 30.0
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splat4d.viewer.options import add_footprint_args, argtype, parse_size, parse_vector
-    from splat4d.viewer.panorama import PROJECTIONS
+    from splatreel.viewer.options import add_footprint_args, argtype, parse_size, parse_vector
+    from splatreel.viewer.panorama import PROJECTIONS
 
     from ._crop import add_crop_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
-                   help="model file (splat4d checkpoint or any importable format; default: the bundled sample)")
+                   help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--out", "-o", required=True, metavar="FILE",
                    help="output: .mp4, .mov, .webm, .png, .exr, or a folder name for a frame sequence")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -65,7 +65,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     c.add_argument("--path", metavar="JSON", help="keyframed camera path file (README: Camera path files)")
     c.add_argument("--cameras", metavar="DATASET",
                    help="use the cameras of a training dataset as path: a D-NeRF layout folder or transforms json, "
-                        "or a checkpoint trained by splat4d (it records its training cameras, any layout)")
+                        "or a checkpoint trained by splatreel (it records its training cameras, any layout)")
     c.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
     c.add_argument("--seconds-per-key", type=float, default=0.5,
                    help="seconds between dataset cameras for --cameras (default 0.5)")
@@ -114,17 +114,17 @@ def add_args(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from splat4d.errors import CameraError
-    from splat4d.formats import load_model
-    from splat4d.samples.trained import trained_checkpoint
-    from splat4d.fileio import atomic_write_json, check_writable
-    from splat4d.viewer.camera_path import CameraPath, nerfstudio_camera_path, path_from_dataset
-    from splat4d.viewer.headless import render_to_file
-    from splat4d.viewer.options import OptionError, parse_background
-    from splat4d.viewer.output import output_kind
-    from splat4d.viewer.panorama import Equirect
-    from splat4d.viewer.renderer import RenderSettings
-    from splat4d.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
+    from splatreel.errors import CameraError
+    from splatreel.formats import load_model
+    from splatreel.samples.trained import trained_checkpoint
+    from splatreel.fileio import atomic_write_json, check_writable
+    from splatreel.viewer.camera_path import CameraPath, nerfstudio_camera_path, path_from_dataset
+    from splatreel.viewer.headless import render_to_file
+    from splatreel.viewer.options import OptionError, parse_background
+    from splatreel.viewer.output import output_kind
+    from splatreel.viewer.panorama import Equirect
+    from splatreel.viewer.renderer import RenderSettings
+    from splatreel.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
                                            scene_times)
 
     from ._crop import apply_crop

@@ -1,4 +1,4 @@
-"""``splat4d sample NAME OUT``: render a procedural animated object to a D-NeRF layout dataset, or build a model."""
+"""``splatreel sample NAME OUT``: render a procedural animated object to a D-NeRF layout dataset, or build a model."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ the D-NeRF layout: OUT/transforms_{train,test,val}.json, OUT/train/r_000.png ...
 Training images are an image matrix of --views azimuths x --frames times (ordered by time, then view); test images
 use other azimuths and elevations at times between the training frames. --model also writes a native 4D Gaussian
 checkpoint built from the object's known motion (no training); --trained copies the bundled checkpoint that
-`splat4d train` fitted to the sample's default dataset (samples marked 'trained' in --list).
+`splatreel train` fitted to the sample's default dataset (samples marked 'trained' in --list).
 
 The scene 'floor' has its own rig instead: moving objects above a white floor to the horizon, 12 fixed cameras
 (11 around it, one straight down from above), ONE camera per time (frame i by camera i mod 12; test images at
@@ -21,17 +21,17 @@ is transparent while the side cameras' is opaque (on purpose). It takes --frames
 --size (200), --test-views (12) and --fov (45); --views, --elevation and --radius do not apply to it. Its
 --model is the scene's exact model (by default 5 Gaussians per pixel of --size; white background): the objects
 from their known motion, the floor as static Gaussians where most cameras see it nearer than the far clip.
-`splat4d eval` of it on the dataset gives the upper bound a trained model is compared with (pass the dataset's
+`splatreel eval` of it on the dataset gives the upper bound a trained model is compared with (pass the dataset's
 --frames, --size and --fov).
 
 examples:
-  splat4d sample --list
-  splat4d sample spinner data/spinner
-  splat4d sample wave data/wave --views 8 --frames 24 --size 512
-  splat4d sample morph --model morph.safetensors
-  splat4d sample spinner --trained spinner.safetensors
-  splat4d sample floor data/floor --frames 48
-  splat4d sample floor data/floor --frames 48 --model floor.safetensors
+  splatreel sample --list
+  splatreel sample spinner data/spinner
+  splatreel sample wave data/wave --views 8 --frames 24 --size 512
+  splatreel sample morph --model morph.safetensors
+  splatreel sample spinner --trained spinner.safetensors
+  splatreel sample floor data/floor --frames 48
+  splatreel sample floor data/floor --frames 48 --model floor.safetensors
 """
 
 
@@ -77,13 +77,13 @@ def _object_config(args: argparse.Namespace):
 
 def _scene_config(args: argparse.Namespace):
     """The `FloorConfig` of the options given; the orbit options are refused for a scene."""
-    from ..errors import Splat4DError
+    from ..errors import SplatreelError
     from ..samples import FloorConfig
 
     orbit_only = {"--views": args.views, "--elevation": args.elevation, "--radius": args.radius}
     given = [flag for flag, value in orbit_only.items() if value is not None]
     if given:
-        raise Splat4DError(f"{', '.join(given)} do{'es' if len(given) == 1 else ''} not apply to sample "
+        raise SplatreelError(f"{', '.join(given)} do{'es' if len(given) == 1 else ''} not apply to sample "
                            f"{args.name!r}: it has its own fixed rig of 12 cameras; "
                            "it takes --frames, --size, --test-views and --fov")
     return FloorConfig(**_given(args, frames=args.frames, size=args.size, test_views=args.test_views,
@@ -93,7 +93,7 @@ def _scene_config(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from ..errors import Splat4DError
+    from ..errors import SplatreelError
     from ..fileio import check_writable
     from ..samples import SAMPLES, SCENES, TRAINED, build_model, get_sample, trained_checkpoint, write_dataset
 
@@ -104,11 +104,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name:<{width}}  {description}{'  (trained checkpoint bundled)' if name in TRAINED else ''}")
         return 0
     if not args.name:
-        raise Splat4DError(f"give a sample NAME ({', '.join([*SAMPLES, *SCENES])}) and an OUT folder, --model "
+        raise SplatreelError(f"give a sample NAME ({', '.join([*SAMPLES, *SCENES])}) and an OUT folder, --model "
                            "and/or --trained")
     get_sample(args.name)  # unknown name: one line listing the names
     if not args.out and not args.model and not args.trained:
-        raise Splat4DError("nothing to write: give an OUT folder, --model MODEL.safetensors and/or --trained CKPT")
+        raise SplatreelError("nothing to write: give an OUT folder, --model MODEL.safetensors and/or --trained CKPT")
     scene = args.name in SCENES
     config = _scene_config(args) if scene else _object_config(args)
     bundled = trained_checkpoint(args.name) if args.trained else None  # not bundled: fail before any work
@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         # and drawn on white; the object models keep the black they always had.
         background = (1.0, 1.0, 1.0) if scene else (0.0, 0.0, 0.0)
         save_checkpoint(args.model, model, background=background,
-                        provenance={"tool": "splat4d sample", "sample": args.name, "frames": config.frames,
+                        provenance={"tool": "splatreel sample", "sample": args.name, "frames": config.frames,
                                     "seed": args.seed}, force=args.force)
         print(f"wrote {args.model}: {len(model):,} Gaussians from sample {args.name!r}")
     if bundled is not None:

@@ -1,4 +1,4 @@
-"""``splat4d convert INPUT --out CKPT``: write any readable model file as a splat4d checkpoint."""
+"""``splatreel convert INPUT --out CKPT``: write any readable model file as a splatreel checkpoint."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import argparse
 ORDER = 15
 HELP = "convert an official 4DGS/Efficient4D checkpoint, a 4DGaussians/4DGen folder or 3DGS PLY(s) to a checkpoint"
 DESCRIPTION = """\
-Convert another tool's model into a splat4d checkpoint (.safetensors).
+Convert another tool's model into a splatreel checkpoint (.safetensors).
 
 INPUT is one of:
   chkpnt30000.pth / model.pth     official 4DGS (main) or Efficient4D checkpoint, or the folder holding it
@@ -15,17 +15,17 @@ INPUT is one of:
                                   baked into --frames keyframes
   point_cloud.ply                 one 3DGS PLY (static model)
   frames/  or  'frames/*.ply'     per-frame 3DGS PLYs (keyframes; quote the glob)
-  model.safetensors               a splat4d checkpoint (re-saved)
+  model.safetensors               a splatreel checkpoint (re-saved)
 
 Values a file does not store are assumed, printed and recorded in the checkpoint's provenance
-(see `splat4d info CKPT`); give the import options below to set them.
+(see `splatreel info CKPT`); give the import options below to set them.
 
 examples:
-  splat4d convert chkpnt30000.pth --out lego.safetensors --convention current --time-range 0 1
-  splat4d convert efficient4d/model.pth --out e4d.safetensors          # legacy rotation, 0..15, white
-  splat4d convert output/dnerf/lego --out lego4dgs.safetensors --frames 50
-  splat4d convert 'frames/*.ply' --out seq.safetensors --time-range 0 2
-  splat4d convert model.safetensors --out tidy.safetensors --crop -1 -1 0 1 1 2   # drop floaters outside a box
+  splatreel convert chkpnt30000.pth --out lego.safetensors --convention current --time-range 0 1
+  splatreel convert efficient4d/model.pth --out e4d.safetensors          # legacy rotation, 0..15, white
+  splatreel convert output/dnerf/lego --out lego4dgs.safetensors --frames 50
+  splatreel convert 'frames/*.ply' --out seq.safetensors --time-range 0 2
+  splatreel convert model.safetensors --out tidy.safetensors --crop -1 -1 0 1 1 2   # drop floaters outside a box
 """
 
 
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..checkpoint import SUFFIX, save_checkpoint
-    from ..errors import Splat4DError
+    from ..errors import SplatreelError
     from ..fileio import check_writable
     from ..formats import load_model
     from ..importers import import_options
@@ -57,12 +57,12 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     if out.suffix != SUFFIX:
-        raise Splat4DError(f"{out}: the output must be a {SUFFIX} file")
+        raise SplatreelError(f"{out}: the output must be a {SUFFIX} file")
     check_writable(out, args.force)  # fail before a long import
     box = CropBox.of(args.crop) if args.crop is not None else None
     ckpt = load_model(args.input, **import_options(args))
     model = ckpt.model.to(dtype=getattr(torch, args.dtype))
-    provenance = dict(ckpt.provenance) or {"source": str(Path(args.input).resolve()), "reader": "splat4d"}
+    provenance = dict(ckpt.provenance) or {"source": str(Path(args.input).resolve()), "reader": "splatreel"}
     if box is not None:
         before = len(model)
         model = apply_crop(model, args.crop)

@@ -1,7 +1,7 @@
 """3DGS PLY files: one as a static model, a folder or glob of per-frame files as keyframes.
 
 The 3DGS layout (Inria ``save_ply``; 4DGaussians' ``point_cloud.ply``; the per-frame files of
-``splat4d export ply`` and of other tools) is one ``vertex`` element of float properties::
+``splatreel export ply`` and of other tools) is one ``vertex`` element of float properties::
 
     x y z  nx ny nz  f_dc_0..2  f_rest_0..(3(K-1)-1)  opacity  scale_0..2  rot_0..3
 
@@ -11,7 +11,7 @@ The 3DGS layout (Inria ``save_ply``; 4DGaussians' ``point_cloud.ply``; the per-f
 * the normals are ignored. A single ``scale_0`` (isotropic Gaussians, as some 4DGen files) is used on all axes.
 
 The reader is plain numpy (binary little/big-endian and ASCII); properties may come in any order and any
-numeric type. Column names are defined here (`COLUMN_PREFIXES`); `splat4d.export.ply` writes the same layout.
+numeric type. Column names are defined here (`COLUMN_PREFIXES`); `splatreel.export.ply` writes the same layout.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ _PLY_TYPES = {
     "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4",
     "double": "f8", "float64": "f8",
 }
-#: The 3DGS vertex properties splat4d reads (numbered ones are ``<prefix><i>``).
+#: The 3DGS vertex properties splatreel reads (numbered ones are ``<prefix><i>``).
 COLUMN_PREFIXES = {"dc": "f_dc_", "rest": "f_rest_", "scale": "scale_", "rot": "rot_"}
 _MAX_HEADER = 1 << 20
 
@@ -284,7 +284,7 @@ def sequence_files(path: Path) -> list[Path]:
 
 
 def manifest_times(files: list[Path]) -> list[float] | None:
-    """Frame times from the ``manifest.json`` that ``splat4d export ply`` writes next to its frames
+    """Frame times from the ``manifest.json`` that ``splatreel export ply`` writes next to its frames
     (``{"frames": [{"time": t, "file": name}, ...]}``), when it lists every file with increasing times."""
     folders = {f.parent for f in files}
     manifest = next(iter(folders)) / "manifest.json" if len(folders) == 1 else None
@@ -303,7 +303,7 @@ def manifest_times(files: list[Path]) -> list[float] | None:
 def read_ply_sequence(path: Path, progress: bool | None = None, **options) -> Checkpoint:
     """Per-frame 3DGS PLYs (a folder or a glob) as `KeyframedGaussians`. Gaussian j of every file is the same
     Gaussian (same count in every file). Frame times: ``--time-range`` spread evenly (frame i of F at
-    t0 + i (t1 - t0) / (F - 1)); else the times of a ``manifest.json`` from ``splat4d export ply``; else 0..1."""
+    t0 + i (t1 - t0) / (F - 1)); else the times of a ``manifest.json`` from ``splatreel export ply``; else 0..1."""
     from tqdm import tqdm
 
     record = ImportRecord(Path(path), "ply-sequence", check_options(options))

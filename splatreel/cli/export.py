@@ -1,5 +1,5 @@
-"""``splat4d export FORMAT CKPT OUT``: OpenUSD, per-frame meshes or per-frame 3DGS PLY (formats from the registry
-in `splat4d.export`)."""
+"""``splatreel export FORMAT CKPT OUT``: OpenUSD, per-frame meshes or per-frame 3DGS PLY (formats from the registry
+in `splatreel.export`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ DESCRIPTION = HELP + """.
 Frames: frame i of N is at model time t0 + i (t1 - t0) / (N - 1), where [t0, t1] is the model's time range or
 --start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets timeCodesPerSecond.
 Gaussians keep their model order at every frame; those invisible at a frame get opacity 0.
-Run `splat4d export FORMAT --help` for a format's options."""
+Run `splatreel export FORMAT --help` for a format's options."""
 
 #: Frames exported when --frames is not given and the model has no keyframes of its own.
 DEFAULT_FRAMES = 48
@@ -21,7 +21,7 @@ DEFAULT_FRAMES = 48
 def _add_common(q: argparse.ArgumentParser, output: str) -> None:
     from ._crop import add_crop_arg
 
-    q.add_argument("checkpoint", metavar="CKPT", help="model file (splat4d checkpoint or any imported format)")
+    q.add_argument("checkpoint", metavar="CKPT", help="model file (splatreel checkpoint or any imported format)")
     q.add_argument("out", metavar=output, help="output file or folder")
     q.add_argument("--frames", type=int, default=None, metavar="N",
                    help=f"number of frames (default: the keyframe count of a keyframed model, else {DEFAULT_FRAMES})")

@@ -1,6 +1,6 @@
 """Atomic file output: nothing a user made is ever half-written or silently overwritten.
 
-Every writer in splat4d goes through `atomic_write_bytes` (`atomic_write_json`), `atomic_path` or `atomic_dir`:
+Every writer in splatreel goes through `atomic_write_bytes` (`atomic_write_json`), `atomic_path` or `atomic_dir`:
 data is written to a temporary name in the destination folder and renamed into place (`os.replace` is atomic on
 POSIX), and an existing output is refused unless `force` is set.
 """

@@ -1,9 +1,9 @@
 """Import options shared by every command that takes a model file, and the record of what an importer assumed.
 
-Other tools' files leave out facts splat4d needs (the 4D rotation convention, the time range, the background
+Other tools' files leave out facts splatreel needs (the 4D rotation convention, the time range, the background
 colour, how many frames to bake). Commands expose them through one argparse helper::
 
-    from splat4d.importers import add_import_args, import_options
+    from splatreel.importers import add_import_args, import_options
 
     def add_args(p):
         p.add_argument("checkpoint")
@@ -12,8 +12,8 @@ colour, how many frames to bake). Commands expose them through one argparse help
     def run(args):
         ckpt = load_model(args.checkpoint, **import_options(args))
 
-Every value an importer had to assume is written as one line to stderr (logger ``splat4d.importers``) and
-recorded in ``provenance["assumed"]`` so that ``splat4d info`` shows it. This module imports nothing heavy: it
+Every value an importer had to assume is written as one line to stderr (logger ``splatreel.importers``) and
+recorded in ``provenance["assumed"]`` so that ``splatreel info`` shows it. This module imports nothing heavy: it
 runs while the CLI builds its parser.
 """
 
@@ -30,7 +30,7 @@ from typing import Any
 from ..covariance import ROTATION_CONVENTIONS
 from ..errors import CheckpointError
 
-log = logging.getLogger("splat4d.importers")
+log = logging.getLogger("splatreel.importers")
 
 #: Option name -> (flags, help). The argparse destination is ``import_<name>`` so that it never collides with a
 #: command's own options (``render --background`` stays the renderer's).
@@ -74,8 +74,8 @@ def add_import_args(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
     """
     group = parser.add_argument_group(
         "import options", "Facts that official 4DGS / Efficient4D checkpoints, 4DGaussians / 4DGen folders and 3DGS\n"
-                          "PLY files do not store (ignored for splat4d checkpoints). Every value assumed instead is\n"
-                          "printed and recorded in the model's provenance (splat4d info).")
+                          "PLY files do not store (ignored for splatreel checkpoints). Every value assumed instead is\n"
+                          "printed and recorded in the model's provenance (splatreel info).")
     taken = set(parser._option_string_actions)  # argparse has no public query for this
     for name, (flags, kwargs) in _FLAGS.items():
         free = [f for f in flags if f not in taken]
@@ -160,8 +160,8 @@ class ImportRecord:
         self._short.append(short)
 
     def warn(self, text: str) -> None:
-        """Print one warning line now (stderr, logger ``splat4d.importers``) and keep it in the provenance."""
-        log.warning("splat4d: %s: %s", self.source.name or str(self.source), text)
+        """Print one warning line now (stderr, logger ``splatreel.importers``) and keep it in the provenance."""
+        log.warning("splatreel: %s: %s", self.source.name or str(self.source), text)
         self.warnings.append(text)
 
     def given(self, name: str) -> Any:
@@ -172,7 +172,7 @@ class ImportRecord:
     def provenance(self) -> dict[str, Any]:
         from .. import __version__
 
-        out = {"source": os.path.abspath(self.source), "reader": self.reader, "imported_by": f"splat4d {__version__}"}
+        out = {"source": os.path.abspath(self.source), "reader": self.reader, "imported_by": f"splatreel {__version__}"}
         out.update(self.facts)
         if self.options:
             out["options"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.options.items()
@@ -186,12 +186,12 @@ class ImportRecord:
         """Log the assumptions (one line) and the options that had no effect on this file (one line)."""
         name = self.source.name or str(self.source)
         if self.assumed:
-            log.warning("splat4d: %s: assumed %s (reasons: splat4d info; give the options to override)", name,
+            log.warning("splatreel: %s: assumed %s (reasons: splatreel info; give the options to override)", name,
                         ", ".join(self._short))
         unused = sorted(set(self.options) - self._used - {"progress"})
         if unused:
             flags = ", ".join("--" + u.replace("_", "-") for u in unused)
-            log.warning("splat4d: %s: ignored %s (not used for %s files)", name, flags, self.reader)
+            log.warning("splatreel: %s: ignored %s (not used for %s files)", name, flags, self.reader)
             self.facts["ignored_options"] = unused
 
 

@@ -1,12 +1,12 @@
-"""The splat4d checkpoint: one ``.safetensors`` file of model tensors plus JSON metadata.
+"""The splatreel checkpoint: one ``.safetensors`` file of model tensors plus JSON metadata.
 
 Layout
 ------
 * Tensors: the model's per-Gaussian tensors under their field names (`Gaussians4D.TENSORS` or
   `KeyframedGaussians.TENSORS`), float32 or float64, contiguous.
-* Metadata: the safetensors header's ``__metadata__`` holds one key ``"splat4d"`` whose value is a JSON object::
+* Metadata: the safetensors header's ``__metadata__`` holds one key ``"splatreel"`` whose value is a JSON object::
 
-    {"format": "splat4d", "format_version": 1, "kind": "gaussians4d" | "keyframed",
+    {"format": "splatreel", "format_version": 1, "kind": "gaussians4d" | "keyframed",
      "model": {"sh_degree": .., "sh_degree_t": .., "time_range": [t0, t1], "rotation_convention": ..},
      "background": [r, g, b], "provenance": {...}, "training": {...},
      "cameras": {"cameras": [...], "views": [...]},   (optional)
@@ -14,7 +14,7 @@ Layout
 
   ``provenance`` says where the model came from (tool, source file, what an importer assumed);
   ``training`` holds the settings of the run that produced it; ``cameras`` the cameras of the images it was trained
-  on (`splat4d.cameras.views_to_json`: each distinct camera once, each view as camera index, time, name), so that
+  on (`splatreel.cameras.views_to_json`: each distinct camera once, each view as camera index, time, name), so that
   viewers can snap to them and render along them without the dataset. Older checkpoints have none.
 
 Writes are atomic (temp file + rename). Loading checks the version, the metadata, a CRC-32 per tensor (so a
@@ -39,9 +39,12 @@ from .errors import CameraError, CheckpointError, ModelError
 from .fileio import atomic_write_bytes
 from .model import MODEL_KINDS, Model
 
-FORMAT_NAME = "splat4d"
+FORMAT_NAME = "splatreel"
 FORMAT_VERSION = 1
-METADATA_KEY = "splat4d"
+METADATA_KEY = "splatreel"
+#: the project's name until 2026-11 (renamed: another package installs a command of that name); checkpoints and
+#: camera paths written before carry it as their metadata key / format name and still open
+LEGACY_NAME = "splat4d"
 SUFFIX = ".safetensors"
 
 
@@ -55,7 +58,7 @@ class Checkpoint:
     training: dict[str, Any] = field(default_factory=dict)
     format_version: int = FORMAT_VERSION
     path: Path | None = None
-    #: the cameras of the training images (`splat4d.cameras.DatasetView`), empty when none were recorded
+    #: the cameras of the training images (`splatreel.cameras.DatasetView`), empty when none were recorded
     views: list = field(default_factory=list)
 
 
@@ -87,7 +90,7 @@ def save_checkpoint(path: str | os.PathLike, model: Model, background=(0.0, 0.0,
                     provenance: dict | None = None, training: dict | None = None, force: bool = False,
                     views=None) -> Path:
     """Write `model` to `path` atomically; refuses to overwrite an existing file unless `force`. `views`: the
-    training cameras to record (`splat4d.cameras.DatasetView`s)."""
+    training cameras to record (`splatreel.cameras.DatasetView`s)."""
     return atomic_write_bytes(path, checkpoint_bytes(model, background, provenance, training, views), force)
 
 
@@ -108,13 +111,14 @@ def _open(path: Path):
         header = f.metadata() or {}
     except Exception as exc:
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise CheckpointError(f"{path}: not a readable splat4d checkpoint (truncated, corrupted or another "
+        raise CheckpointError(f"{path}: not a readable splatreel checkpoint (truncated, corrupted or another "
                               f"format): {reason}") from None
-    if METADATA_KEY not in header:
-        raise CheckpointError(f"{path}: a safetensors file but not a splat4d checkpoint (no '{METADATA_KEY}' "
+    key = next((k for k in (METADATA_KEY, LEGACY_NAME) if k in header), None)
+    if key is None:
+        raise CheckpointError(f"{path}: a safetensors file but not a splatreel checkpoint (no '{METADATA_KEY}' "
                               f"metadata)")
     try:
-        meta = json.loads(header[METADATA_KEY])
+        meta = json.loads(header[key])
         if not isinstance(meta, dict):
             raise ValueError("not an object")
     except ValueError as exc:
@@ -123,15 +127,15 @@ def _open(path: Path):
 
 
 def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu") -> Checkpoint:
-    """Load and validate a splat4d checkpoint. Raises `CheckpointError` (one line) on any problem."""
+    """Load and validate a splatreel checkpoint. Raises `CheckpointError` (one line) on any problem."""
     path = Path(path)
     f, meta = _open(path)
     version = meta.get("format_version")
-    if meta.get("format") != FORMAT_NAME or not isinstance(version, int):
-        raise CheckpointError(f"{path}: metadata does not declare a splat4d format version")
+    if meta.get("format") not in (FORMAT_NAME, LEGACY_NAME) or not isinstance(version, int):
+        raise CheckpointError(f"{path}: metadata does not declare a splatreel format version")
     if version > FORMAT_VERSION:
-        raise CheckpointError(f"{path}: format version {version} is newer than this splat4d reads "
-                              f"(up to {FORMAT_VERSION}); upgrade splat4d")
+        raise CheckpointError(f"{path}: format version {version} is newer than this splatreel reads "
+                              f"(up to {FORMAT_VERSION}); upgrade splatreel")
     if version < 1:
         raise CheckpointError(f"{path}: invalid format version {version}")
     kind = meta.get("kind")
@@ -183,7 +187,7 @@ def _views_or_warning(meta: dict, path: Path) -> list:
 
 
 def views_in_metadata(meta: dict, path: Path | str = "checkpoint") -> list:
-    """The training cameras a checkpoint's metadata records (`splat4d.cameras.DatasetView`s; [] when none)."""
+    """The training cameras a checkpoint's metadata records (`splatreel.cameras.DatasetView`s; [] when none)."""
     if "cameras" not in meta:
         return []
     try:

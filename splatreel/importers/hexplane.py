@@ -175,7 +175,7 @@ def parse_state_dict(state: dict[str, Tensor], flags: DeformFlags | None = None,
     unsupported = sorted({k.split(".")[1] for k in state if k.startswith(_PREFIX)
                           and k.split(".")[1] in ("static_mlp", "empty_voxel")})
     if unsupported:
-        raise CheckpointError(f"the deformation uses {', '.join(unsupported)} (a masked variant), which splat4d "
+        raise CheckpointError(f"the deformation uses {', '.join(unsupported)} (a masked variant), which splatreel "
                               f"does not import")
     aabb = _tensor(state, _PREFIX + "grid.aabb", (2, 3))
     if bool((aabb[0] == aabb[1]).any()):

@@ -1,10 +1,10 @@
-"""The ``splat4d`` command: thin subcommand modules over the library.
+"""The ``splatreel`` command: thin subcommand modules over the library.
 
 Each subcommand is a module in this package, found automatically, exposing ``HELP`` (one line),
 ``add_args(parser)``, ``run(args) -> int`` and optionally ``ORDER`` (its place in ``--help``; default 100) and
 ``DESCRIPTION``. The subcommand's name is the module's name (``_`` becomes ``-``). Heavy imports happen inside
 ``run`` so that ``--help`` stays fast. Library code raises typed
-errors (`splat4d.errors`); only `main` turns them into ``splat4d: error: <one line>`` and an exit code.
+errors (`splatreel.errors`); only `main` turns them into ``splatreel: error: <one line>`` and an exit code.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pkgutil
 import sys
 
 from .. import __version__
-from ..errors import Splat4DError
+from ..errors import SplatreelError
 
 
 def subcommands() -> dict[str, object]:
@@ -32,8 +32,8 @@ def subcommands() -> dict[str, object]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="splat4d", description="Toolkit for 4D Gaussian assets: train, view, render, export.")
-    parser.add_argument("--version", action="version", version=f"splat4d {__version__}")
+        prog="splatreel", description="Toolkit for 4D Gaussian assets: train, view, render, export.")
+    parser.add_argument("--version", action="version", version=f"splatreel {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, mod in subcommands().items():
         p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
@@ -50,17 +50,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     # a warning is one line that names the command, like an error, not a source location and a code line
     previous = warnings.formatwarning
-    warnings.formatwarning = lambda message, *_, **__: f"splat4d {args.command}: warning: {message}\n"
+    warnings.formatwarning = lambda message, *_, **__: f"splatreel {args.command}: warning: {message}\n"
     try:
         return int(args._run(args) or 0)
-    except Splat4DError as exc:
-        print(f"splat4d {args.command}: error: {exc}", file=sys.stderr)
+    except SplatreelError as exc:
+        print(f"splatreel {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"splat4d {args.command}: interrupted", file=sys.stderr)
+        print(f"splatreel {args.command}: interrupted", file=sys.stderr)
         return 130
     except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
-        print(f"splat4d {args.command}: error: {exc.strerror or exc}: {exc.filename}", file=sys.stderr)
+        print(f"splatreel {args.command}: error: {exc.strerror or exc}: {exc.filename}", file=sys.stderr)
         return 1
     finally:
         warnings.formatwarning = previous

@@ -51,7 +51,7 @@ def _global_name(entry) -> str:
 def _refuse(path: Path, names: list[str]) -> CheckpointError:
     shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
     return CheckpointError(f"{path}: refused to load: the pickle needs {shown}, which is not a tensor, number or "
-                           f"numpy scalar (splat4d never runs code from a model file; re-save it with tensors "
+                           f"numpy scalar (splatreel never runs code from a model file; re-save it with tensors "
                            f"only)")
 
 

@@ -1,6 +1,6 @@
-"""Importers: other tools' 4D / 3D Gaussian files as splat4d models.
+"""Importers: other tools' 4D / 3D Gaussian files as splatreel models.
 
-Every command that takes a model calls `splat4d.formats.load_model(path, **options)`; the readers below are
+Every command that takes a model calls `splatreel.formats.load_model(path, **options)`; the readers below are
 registered there the first time it runs, and are chosen by content:
 
 =====================  ===========================================================  =============================
@@ -29,7 +29,7 @@ _registered = False
 
 
 def register() -> None:
-    """Register the importers' readers with `splat4d.formats` (idempotent)."""
+    """Register the importers' readers with `splatreel.formats` (idempotent)."""
     global _registered
     if _registered:
         return

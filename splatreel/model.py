@@ -95,7 +95,7 @@ class Gaussians4D:
         quats_l, quats_r: ``[N, 4]`` left / right quaternions, w first, unnormalised (normalised on use).
         opacity_logits: ``[N]`` logit of the opacity.
         sh_dc: ``[N, 1, 3]`` first colour coefficient.
-        sh_rest: ``[N, M - 1, 3]`` the others, M = (sh_degree+1)^2 (sh_degree_t+1), layout of `splat4d.sh`.
+        sh_rest: ``[N, M - 1, 3]`` the others, M = (sh_degree+1)^2 (sh_degree_t+1), layout of `splatreel.sh`.
         sh_degree: spatial SH degree 0..3.
         sh_degree_t: time (Fourier) degree 0..2.
         time_range: (t0, t1); T = t1 - t0 scales the time terms of the colour.

@@ -121,7 +121,7 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
 
 def test_playback_lowers_the_resolution_to_fit_the_frame_budget_unless_kept_sharp(display, files, tmp_path):
     """A still camera while the animation plays: with a frame budget no frame can meet, the playing frames are
-    drawn below full resolution (`Resolution.while_playing`), with ``--sharp-playback`` at full resolution; paused,
+    drawn below full resolution (`Resolution.sharp_playback`), with ``--sharp-playback`` at full resolution; paused,
     at full resolution (the depth-view test below)."""
     _, _, ckpt = files
     reports = []

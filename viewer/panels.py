@@ -133,7 +133,9 @@ def view_tab(app: AppState) -> None:
         imgui.set_tooltip(f"draw fewer pixels while the view moves, to keep frames under {res.budget_ms:.0f} ms")
     if res.adaptive:
         imgui.same_line()
-        _, res.while_playing = imgui.checkbox("and playing", res.while_playing)
+        changed, lower = imgui.checkbox("and playing", not res.sharp_playback)
+        if changed:
+            res.sharp_playback = not lower
         if imgui.is_item_hovered():
             imgui.set_tooltip("also while the animation plays under a still camera (sharp again when paused)")
     if imgui.button("Screenshot (P)"):

@@ -63,11 +63,13 @@ class AppOptions:
     vsync: bool = True
     #: share of the window's pixels drawn per axis at rest (`Resolution.scale`) ...
     render_scale: float = 1.0
-    #: ... and whether to draw fewer while the view moves, to keep frames within `frame_budget_ms` ...
+    #: ... and whether to draw fewer while the camera moves or the animation plays, to keep frames within
+    #: `frame_budget_ms` ...
     adaptive_resolution: bool = True
     frame_budget_ms: float = 40.0
-    #: ... and while the animation plays under a still camera (`Resolution.while_playing`)
-    lower_while_playing: bool = True
+    #: ... and True keeps the full resolution while the animation plays under a still camera
+    #: (`Resolution.sharp_playback`, ``--sharp-playback``)
+    sharp_playback: bool = False
     #: automation (tests, scripted captures): stop after this many frames ...
     exit_after: int | None = None
     #: ... and save a screenshot of the last frame here, and a JSON report here
@@ -138,7 +140,7 @@ class AppState:
         self._requested: tuple | None = None
         o = self.options
         self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms,
-                                     while_playing=o.lower_while_playing)
+                                     sharp_playback=o.sharp_playback)
         self._last_pose: tuple | None = None
         self._last_time: float | None = None
         #: the window's framebuffer size (`AppWindow` keeps it current; Add key and Save path use it)

@@ -20,7 +20,7 @@ from splatreel.cameras import orbit
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
 from splatreel.samples import trained_checkpoint
 from splatreel.train import losses
-from splatreel.viewer.state import camera_from_json
+from splatreel.viewer.app_data import camera_from_json
 from splatreel.viewer.camera_path import CameraKey, CameraPath
 from splatreel.viewer.renderer import RenderSettings, render_image
 from splatreel.viewer.synthetic import synthetic_model

@@ -6,10 +6,12 @@ Gaussians under the cursor, Alt+click measures, Shift+drag selects Gaussians (Sh
 deletes the selection, Ctrl+Z undoes a deletion, Esc quits. Drop a model file on the window (or type its path in the
 panel) to open it.
 
-The app is three layers, each in its own module:
+The app is three layers:
 
-* `state.AppState`: the model and its edits, selection, inspect and measure, the report (no window, no imgui; the
-  tests drive it on a headless renderer);
+* `state.AppState`: the model and its edits, selection, inspect and measure, the camera path being made, the report
+  (no window, no imgui: the tests drive it on a headless renderer), over the plain data of ``app_data.py``
+  (`AppOptions`, what the panels edit); `frames.FramePlanner` plans each frame from it (time, camera, resolution,
+  sorting in a worker thread, overlays, screenshots);
 * `window.AppWindow`: glfw + imgui set-up, the frame loop and input, calling the state;
 * `panels`: one function per tab of the panel, drawing the state.
 """

@@ -1,5 +1,6 @@
-"""The desktop app's panel, drawn with Dear ImGui over an `AppState`: one function per tab (View, Path, Edit,
-Inspect), called by `AppWindow` every frame after the model is drawn.
+"""The desktop app's panel, drawn with Dear ImGui over an `AppState` after the model each frame: `draw_panel` (the
+live numbers, time, the tabs, the file line) and one function per tab (View, Path, Edit, Inspect). Buttons call the
+state's actions through `AppState._attempt`, so that an error is one line on the status line.
 """
 
 from __future__ import annotations
@@ -11,8 +12,8 @@ from imgui_bundle import imgui
 
 from splatreel.constants import NEAR_PLANE
 
-from .camera_path import CameraKey, CameraPath
-from .editors import PATH_FORMATS, Inspector, MeasureTape
+from .app_data import PATH_FORMATS, Inspector, MeasureTape
+from .camera_path import CameraPath
 from .overlay import SELECTION_COLOR
 from .pick import peak_time, vector_text
 from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, RenderSettings
@@ -21,6 +22,7 @@ from .state import AppState
 
 
 def draw_panel(app: AppState) -> None:
+    """The app's one window of controls."""
     imgui.set_next_window_pos((10, 10), imgui.Cond_.first_use_ever)
     imgui.set_next_window_size((370, 0), imgui.Cond_.first_use_ever)
     imgui.begin("splatreel")
@@ -72,7 +74,7 @@ def draw_panel(app: AppState) -> None:
                                                   0.0, 1.5)
 
     imgui.separator_text("File")
-    changed, app._open_text = imgui.input_text("##open", getattr(app, "_open_text", ""))
+    changed, app._open_text = imgui.input_text("##open", app._open_text)
     imgui.same_line()
     if imgui.button("Open"):
         app._pending_open = app._open_text
@@ -81,7 +83,8 @@ def draw_panel(app: AppState) -> None:
 
 
 def view_tab(app: AppState) -> None:
-    st, pb, s, c = app._stats, app.playback, app.settings, app.controller
+    """The View tab: the camera, the dataset cameras, the look (`RenderSettings`) and the resolution."""
+    st, s, c = app._stats, app.settings, app.controller
     imgui.separator_text("Camera")
     if imgui.button("Reset (R)"):
         c.reset(app.framing)
@@ -91,10 +94,7 @@ def view_tab(app: AppState) -> None:
     if app._views:
         _, app._view_index = imgui.slider_int("dataset view", app._view_index, 0, len(app._views) - 1)
         if imgui.button("Snap to dataset camera"):
-            v = app._views[app._view_index]
-            c.snap(v.camera)
-            pb.time, pb.playing = v.time, False
-            app._path.playing = False
+            app.snap_to_view()
         imgui.same_line()
         imgui.text(Path(app._views[app._view_index].name).name)
         _, app._show_cameras = imgui.checkbox("show dataset cameras", app._show_cameras)
@@ -169,16 +169,13 @@ def footprint_controls(s: RenderSettings) -> None:
 
 
 def path_tab(app: AppState) -> None:
+    """The Path tab: make, play, save and load a camera path (`PathEditor`)."""
     pe = app._path
     n = len(pe.path.keys) if pe.path else 0
     imgui.text(f"{n} keyframe(s)" + (f", {pe.path.duration:.1f} s" if n else ""))
     _, pe.key_interval = imgui.slider_float("key spacing", pe.key_interval, 0.1, 5.0, "%.1f s")
     if imgui.button("Add key"):
-        width, height = app.size  # the window as it is now, maybe resized
-        cam = app.controller.camera(width, height)
-        time_at = pe.path.keys[-1].time + pe.key_interval if pe.path else 0.0
-        key = CameraKey.from_camera(time_at, cam, app.playback.time)
-        pe.path = pe.path.with_key(key) if pe.path else CameraPath([key], app.controller.up)
+        app.add_path_key()
     imgui.same_line()
     if imgui.button("Clear"):
         pe.path, pe.playing = None, False
@@ -203,6 +200,7 @@ def path_tab(app: AppState) -> None:
 
 
 def edit_tab(app: AppState) -> None:
+    """The Edit tab: the crop box, the selection and deletions, and Save edited."""
     ce, ed = app._crop, app._editor
     edits = ed.edits
     imgui.separator_text("Crop box")
@@ -256,6 +254,7 @@ def edit_tab(app: AppState) -> None:
 
 
 def inspect_tab(app: AppState) -> None:
+    """The Inspect tab: the Ctrl+clicked pixel's Gaussians (`pick_section`) and the measuring tape."""
     pick_section(app)
     imgui.separator_text("Measure")
     m = app._measure
@@ -270,6 +269,7 @@ def inspect_tab(app: AppState) -> None:
 
 
 def pick_section(app: AppState) -> None:
+    """The inspected pixel: its Gaussians by share, the chosen one's attributes, and what to do with it."""
     ins = app._inspect
     if ins.stack is None:
         imgui.text_wrapped("Ctrl+click the model: the Gaussians that make that pixel, largest share first")

@@ -1,7 +1,8 @@
 """The desktop app's state: the model shown and its edits (load, crop, delete, undo, save), selection, inspect and
-measure, the camera path being made, the report and screenshots' file names. No window and no imgui: `AppWindow`
-(``window.py``) drives it from glfw input and `panels` draws it, and the tests drive it directly on a headless
-renderer (``state.renderer = SplatRenderer(headless_context())``).
+measure, the camera path being made, the newest sort of the shown Gaussians, the report and screenshots' file names.
+No window and no imgui: `AppWindow` (``window.py``) drives it from glfw input, `FramePlanner` (``frames.py``) plans
+each frame from it, `panels` draws it, and the tests drive it directly on a headless renderer
+(``state.renderer = SplatRenderer(headless_context())``, then `load`).
 
 Editing: the crop box (`splatreel.model.crop`: the Gaussians whose centre lies in the box when they show most; the
 Edit tab copies the box as the ``--crop`` option of convert, render and export) and deleted Gaussians (`selection`:
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,101 +29,35 @@ from splatreel.errors import GLError, SplatreelError
 from splatreel.fileio import atomic_write_json
 from splatreel.model import CropBox, crop_mask
 
-from .camera_path import CameraPath, dataset_views
+from .app_data import (LIVE_CROP_MS, AppOptions, CropEditor, DeletionEditor, Inspector, LiveStats, MeasureTape,
+                       PathEditor, camera_to_json, edited_name)
+from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution
-from .editors import (LIVE_CROP_MS, CropEditor, DeletionEditor, Inspector, MeasureTape, PathEditor, edited_name)
 from .overlay import ellipsoid_segments
 from .pick import PixelStack, inspect_gaussian, vector_text
-from .renderer import FrameStats, RenderSettings
 from .selection import Edits, centres_at, in_rect, marker_segments
 from .sorting import SortKey, SortResult
 from .splats import needs_per_frame_upload, to_arrays
 from .trajectory import frame_model, framing_of, model_extent, path_as_nerfstudio
 
 
-@dataclass
-class AppOptions:
-    """Start-up settings of the desktop app (the ``splatreel view`` options)."""
-
-    size: tuple[int, int] = (1280, 720)
-    up: str = "z"
-    fov: float = 40.0
-    #: render mode, splat scale, SH degree, blending and background at start-up ...
-    settings: RenderSettings = field(default_factory=RenderSettings)
-    #: ... except that the background is the checkpoint's unless this is False
-    checkpoint_background: bool = True
-    play: bool = True
-    time: float | None = None
-    loop_seconds: float = 2.0
-    cameras: str | None = None
-    split: str | None = "train"
-    camera_path: str | None = None
-    #: start playing `camera_path` at once (a presentation, a scripted capture)
-    play_path: bool = False
-    screenshot_dir: str = "."
-    vsync: bool = True
-    #: share of the window's pixels drawn per axis at rest (`Resolution.scale`) ...
-    render_scale: float = 1.0
-    #: ... and whether to draw fewer while the camera moves or the animation plays, to keep frames within
-    #: `frame_budget_ms` ...
-    adaptive_resolution: bool = True
-    frame_budget_ms: float = 40.0
-    #: ... and True keeps the full resolution while the animation plays under a still camera
-    #: (`Resolution.sharp_playback`, ``--sharp-playback``)
-    sharp_playback: bool = False
-    #: automation (tests, scripted captures): stop after this many frames ...
-    exit_after: int | None = None
-    #: ... and save a screenshot of the last frame here, and a JSON report here
-    screenshot: str | None = None
-    report: str | None = None
-    force: bool = False
-    #: start with the crop box on, at these 6 numbers (min corner, max corner), as ``--crop``
-    crop: tuple[float, ...] | None = None
-    #: start with this window pixel (x, y from the top left) inspected, as a Ctrl+click there
-    inspect: tuple[int, int] | None = None
-    #: start with the Gaussians in this window rectangle (x0, y0, x1, y1 from the top left) selected, as a Shift+drag
-    select: tuple[float, float, float, float] | None = None
-
-
-@dataclass
-class LiveStats:
-    """The live numbers of the panel: the last frame's `FrameStats`, its wall time, the last sort, sort count."""
-
-    frame: FrameStats = field(default_factory=FrameStats)
-    frame_ms: float = 0.0
-    scale: float = 1.0
-    moving: bool = False
-    playing: bool = False
-    sort_ms: float = 0.0
-    sorts: int = 0
-
-
-def camera_to_json(camera) -> dict:
-    """A camera as plain JSON (c2w rows, intrinsics, size)."""
-    return {"c2w": np.asarray(camera.c2w).tolist(), "fx": camera.fx, "fy": camera.fy, "cx": camera.cx,
-            "cy": camera.cy, "width": camera.width, "height": camera.height}
-
-
-def camera_from_json(data: dict):
-    """The camera `camera_to_json` wrote (e.g. a report's, to render its view headless)."""
-    from splatreel.cameras import Camera
-
-    return Camera(np.array(data["c2w"]), data["fx"], data["fy"], data["cx"], data["cy"], data["width"],
-                  data["height"])
-
-
 class AppState:
-    """The app's state around one model at a time (see module doc). The window sets `renderer` (and `size`, the
-    framebuffer's) before `load`; the tests set a headless renderer."""
+    """The app's state around one model at a time (see module doc). The window sets `renderer` and `size` (its
+    framebuffer's), then calls `start`; the tests set a headless renderer and call `load`."""
 
     def __init__(self, source, options: AppOptions | None = None) -> None:
         """`source`: a model file path, or a `Checkpoint`."""
-        self.options = options or AppOptions()
+        self.options = o = options or AppOptions()
         self.status = ""
         self.report: dict = {"frames": 0}
+        #: the window's framebuffer size (`AppWindow` keeps it current; the view, Add key and Save path use it)
+        self.size: tuple[int, int] = tuple(o.size)
+        self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms,
+                                     sharp_playback=o.sharp_playback)
         self._source = source
-        self._pending_open: str | None = None
-        self._screenshot_request: str | None = None
+        self._pending_open: str | None = None  # a file dropped on the window or typed in the panel, opened next
+        self._open_text = ""
+        self._screenshot_request: str | None = None  # taken at the next frame
         self._fly = False
         self._stats = LiveStats()
         self._path = PathEditor()
@@ -130,23 +65,46 @@ class AppState:
         self._editor = DeletionEditor()
         self._inspect = Inspector()
         self._measure = MeasureTape()
-        self._edit_tab_first = self.options.crop is not None  # --crop: show the Edit tab at start-up
+        self._edit_tab_first = o.crop is not None  # --crop: show the Edit tab at start-up
         self._views = []
         self._view_index = 0
         self._show_cameras = True
-        self._overlay_cache: tuple | None = None
-        self._generation = 0
+        #: the newest sort of the shown Gaussians (`FramePlanner` requests them) and which set they are: each edit
+        #: makes a new generation, and sorts of an older one no longer apply
         self._order: SortResult | None = None
-        self._requested: tuple | None = None
+        self._generation = 0
+
+    # --- start and end ------------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Open what the options name as the window opens: the dataset cameras (before the model: `load` steps
+        frames through their times), the model, the camera path, then the ``--inspect`` pixel and the ``--select``
+        rectangle of the window's view."""
         o = self.options
-        self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms,
-                                     sharp_playback=o.sharp_playback)
-        self._last_pose: tuple | None = None
-        self._last_time: float | None = None
-        #: the window's framebuffer size (`AppWindow` keeps it current; Add key and Save path use it)
-        self.size: tuple[int, int] = tuple(self.options.size)
+        if o.cameras:
+            self._views = dataset_views(o.cameras, o.split)
+        self.load(self._source)
+        if o.camera_path:
+            pe = self._path
+            pe.path, pe.file = CameraPath.load(o.camera_path, self.model.time_range), o.camera_path
+            if o.play_path:
+                pe.playing, pe.time = True, pe.path.start
+        self.report.update(time_start=self.playback.time, started=time.time())
+        if o.inspect is not None:
+            self.inspect(*self._current_view(*self.size), *o.inspect)
+        if o.select is not None:
+            self.select_rect(*self._current_view(*self.size), o.select)
+            self._edit_tab_first = True
 
+    def finish(self, frames: int) -> dict:
+        """The report's totals after `frames` frames, written to the options' report file when one is named."""
+        self.report.update(frames=frames, time_end=self.playback.time, sorts=self._stats.sorts,
+                           seconds=time.time() - self.report["started"],
+                           resolutions=sorted(self.report.get("resolutions", ())))
+        if self.options.report:
+            atomic_write_json(self.options.report, self.report, force=True)
+        return self.report
 
+    # --- the model ----------------------------------------------------------------------------------------------
     def load(self, source) -> None:
         """Show a model file (or `Checkpoint`); on failure keep the current model and report the error."""
         from splatreel.formats import load_model
@@ -193,6 +151,53 @@ class AppState:
         self._update_frame_times()
 
     @staticmethod
+    def _training_views(ckpt) -> list:
+        """The cameras of the dataset a checkpoint was trained on: those it records, else those of its dataset
+        folder when that is still readable."""
+        if getattr(ckpt, "views", None):
+            return list(ckpt.views)
+        root = (getattr(ckpt, "training", None) or {}).get("dataset")
+        if not root or not Path(root).is_dir():
+            return []
+        try:
+            return dataset_views(root, "train")
+        except SplatreelError:
+            return []
+
+    def _update_frame_times(self) -> None:
+        """The times that frame stepping visits: a keyframed model's keys, else its dataset's frame times."""
+        keys = getattr(self.model, "times", None)
+        times = keys.tolist() if keys is not None else sorted({v.time for v in self._views})
+        self.playback.frame_times = tuple(float(t) for t in times)
+
+    def _open(self, path: str) -> None:
+        if not self._drops_unsaved_edits("open the file"):
+            self._attempt(lambda: self.load(path))
+
+    def _drops_unsaved_edits(self, action: str) -> bool:
+        """True when `action` (opening, closing) would drop deletions not yet saved and the user has not yet been
+        told: the status line tells them and the next attempt goes ahead."""
+        ed = self._editor
+        if not ed.unsaved or action in ed.warned:
+            return False
+        ed.warned.add(action)
+        self.status = (f"{ed.edits.num_deleted:,} deleted Gaussian(s) are not saved: Save edited in the Edit tab, "
+                       f"or {action} again to drop them")
+        return True
+
+    def _attempt(self, action, done: str | None = None) -> bool:
+        """Run a user action; its one-line error (or `done`) goes to the panel's status line. True on success."""
+        try:
+            action()
+        except SplatreelError as exc:
+            self.status = f"error: {exc}"
+            return False
+        if done:
+            self.status = done
+        return True
+
+    # --- crop box and deletions --------------------------------------------------------------------------------
+    @staticmethod
     def _initial_crop(extent: tuple[np.ndarray, np.ndarray], values) -> CropEditor:
         """A new model's crop editor: off, with the box at the model's extent (`model_extent`); on at `values`
         (``--crop``) when given."""
@@ -232,13 +237,20 @@ class AppState:
         if whole:
             ed.full_arrays = self.renderer.splats
         self._generation += 1  # sorts of the previous set of Gaussians no longer apply
-        self._order, self._requested = None, None
+        self._order = None
         ce.shown, ce.apply_ms = box, (time.perf_counter() - start) * 1e3
         self.report.update(shown_gaussians=len(shown), deleted=ed.edits.num_deleted)
         self._inspect = Inspector()  # its indices were into the previous set of Gaussians
         return shown
 
-    # --- selection and deletion ---------------------------------------------------------------------------------
+    def _apply_crop_edits(self) -> None:
+        """Show the edited box: at once when cropping is quick, else when the drag is released."""
+        ce = self._crop
+        if ce.box() != ce.shown and (not ce.dragging or ce.apply_ms < LIVE_CROP_MS):
+            self._apply_edits(self.playback.time)
+            if not len(self.renderer.model):  # as `--crop` says of such a box, instead of an empty window
+                self.status = f"the crop box holds none of the {len(self.model):,} Gaussians"
+
     def select_rect(self, camera, t: float, rect, mode: str = "add") -> int:
         """Select (mode "add" / "replace") or unselect ("remove") the shown Gaussians whose centre at `t` lies in
         `rect` (x0, y0, x1, y1: pixels of `camera`'s image; `selection.in_rect`); returns how many it caught."""
@@ -254,13 +266,6 @@ class AppState:
         verb = "unselected" if mode == "remove" else "selected"
         self.status = f"{verb} {len(caught):,} Gaussian(s); {selected:,} selected"
         return len(caught)
-
-    def _inspected_gaussian(self) -> int:
-        """The loaded model's index of the Gaussian shown in the Inspect tab."""
-        hit = self._inspect.hit
-        if hit is None:
-            raise SplatreelError("Ctrl+click the model first: nothing is inspected")
-        return int(self._editor.shown_index[hit.index])
 
     def select_inspected(self) -> None:
         """Add the Gaussian shown in the Inspect tab to the selection."""
@@ -307,17 +312,46 @@ class AppState:
             self.inspect(camera, self.playback.time, *pixel)
             self.status = status
 
-    def _drops_unsaved_edits(self, action: str) -> bool:
-        """True when `action` (opening, closing) would drop deletions not yet saved and the user has not yet been
-        told: the status line tells them and the next attempt goes ahead."""
-        ed = self._editor
-        if not ed.unsaved or action in ed.warned:
-            return False
-        ed.warned.add(action)
-        self.status = (f"{ed.edits.num_deleted:,} deleted Gaussian(s) are not saved: Save edited in the Edit tab, "
-                       f"or {action} again to drop them")
-        return True
+    def _save_edited(self) -> None:
+        """Write what the window shows: the model cropped to the box (when on) without its deleted Gaussians, with
+        both edits in the provenance ("crop": the box; "deleted": Gaussians deleted by hand inside it)."""
+        from splatreel.checkpoint import save_checkpoint
 
+        ed, ckpt, n = self._editor, self.checkpoint, len(self.model)
+        box = self._crop.shown
+        in_box = self._in_box(box)
+        model = self.renderer.model  # `_apply_edits` made it: the box's Gaussians less the deleted ones
+        deleted = int(np.count_nonzero(in_box & ed.edits.deleted))
+        if box is None and not deleted:
+            raise SplatreelError("nothing to save: turn on 'crop to box' or delete Gaussians first")
+        if not len(model):
+            raise SplatreelError("the edits leave no Gaussians to save")
+        provenance = dict(ckpt.provenance or {})
+        if box is not None:
+            provenance["crop"] = box.provenance(int(in_box.sum()), n)
+        if deleted:
+            provenance["deleted"] = {"count": deleted, "kept": len(model), "of": n}
+        save_checkpoint(ed.file, model, background=ckpt.background, provenance=provenance,
+                        training=ckpt.training, force=ed.overwrite, views=getattr(ckpt, "views", None))
+        ed.unsaved = False
+        self.status = f"saved {len(model):,} of {n:,} Gaussians to {ed.file}"
+
+    def _selection_markers(self, camera) -> np.ndarray:
+        """Crosses (`selection.marker_segments`) at the centres of the selected Gaussians that are shown, at the
+        displayed time."""
+        ed, t = self._editor, self.playback.time
+        selection = (self._generation, ed.edits.revision)
+        if ed.markers is None or ed.markers[0] != selection:  # a scan of the whole selection mask: on a change only
+            ed.markers = (selection, np.flatnonzero(ed.edits.selected[ed.shown_index]), None)
+        _, shown, centres = ed.markers
+        if not len(shown):
+            return np.zeros((0, 2, 3))
+        if centres is None or centres[0] != t:  # the centres move with time
+            centres = (t, centres_at(self.renderer.splats_at(t), t, shown))
+            ed.markers = (selection, shown, centres)
+        return marker_segments(centres[1], camera)
+
+    # --- inspect and measure -----------------------------------------------------------------------------------
     def inspect(self, camera, t: float, x: int, y: int) -> PixelStack:
         """Pick pixel (x, y) of `camera`'s image at time `t` (`SplatRenderer.pick`) and show its Gaussians in the
         Inspect panel, the largest share first."""
@@ -333,6 +367,26 @@ class AppState:
             "top": None if top is None else {"index": top.index, "weight": top.weight,
                                              "attributes": dict(self._inspected(t)[0])}}  # rank 0 = top
         return stack
+
+    def _inspected_gaussian(self) -> int:
+        """The loaded model's index of the Gaussian shown in the Inspect tab."""
+        hit = self._inspect.hit
+        if hit is None:
+            raise SplatreelError("Ctrl+click the model first: nothing is inspected")
+        return int(self._editor.shown_index[hit.index])
+
+    def _inspected(self, t: float) -> tuple[list, np.ndarray] | None:
+        """(`describe` rows, 2-sigma ellipsoid segments at the splat scale) of the inspected Gaussian at `t`."""
+        ins = self._inspect
+        hit = ins.hit
+        if hit is None:
+            return None
+        key = (hit.index, t, self.settings.splat_scale, self.settings.temporal_fade)
+        if ins.cache is None or ins.cache[0] != key:
+            rows, g = inspect_gaussian(self.renderer.model, hit.index, t, self.settings.temporal_fade)
+            cov = g.covariances[0].double().numpy() * self.settings.splat_scale ** 2
+            ins.cache = (key, rows, ellipsoid_segments(g.means[0].double().numpy(), cov))
+        return ins.cache[1], ins.cache[2]
 
     def measure(self, camera, t: float, x: int, y: int) -> np.ndarray:
         """Put an end of the measuring tape on the surface seen at pixel (x, y) of `camera`'s image at time `t` (the
@@ -362,79 +416,7 @@ class AppState:
         ends = marker_segments(np.array(pts), camera, pixels=10.0)
         return np.concatenate([ends, np.array(pts)[None]]) if len(pts) == 2 else ends
 
-    def _inspected(self, t: float) -> tuple[list, np.ndarray] | None:
-        """(`describe` rows, 2-sigma ellipsoid segments at the splat scale) of the inspected Gaussian at `t`."""
-        ins = self._inspect
-        hit = ins.hit
-        if hit is None:
-            return None
-        key = (hit.index, t, self.settings.splat_scale, self.settings.temporal_fade)
-        if ins.cache is None or ins.cache[0] != key:
-            rows, g = inspect_gaussian(self.renderer.model, hit.index, t, self.settings.temporal_fade)
-            cov = g.covariances[0].double().numpy() * self.settings.splat_scale ** 2
-            ins.cache = (key, rows, ellipsoid_segments(g.means[0].double().numpy(), cov))
-        return ins.cache[1], ins.cache[2]
-
-    def _save_edited(self) -> None:
-        """Write what the window shows: the model cropped to the box (when on) without its deleted Gaussians, with
-        both edits in the provenance ("crop": the box; "deleted": Gaussians deleted by hand inside it)."""
-        from splatreel.checkpoint import save_checkpoint
-
-        ed, ckpt, n = self._editor, self.checkpoint, len(self.model)
-        box = self._crop.shown
-        in_box = self._in_box(box)
-        model = self.renderer.model  # `_apply_edits` made it: the box's Gaussians less the deleted ones
-        deleted = int(np.count_nonzero(in_box & ed.edits.deleted))
-        if box is None and not deleted:
-            raise SplatreelError("nothing to save: turn on 'crop to box' or delete Gaussians first")
-        if not len(model):
-            raise SplatreelError("the edits leave no Gaussians to save")
-        provenance = dict(ckpt.provenance or {})
-        if box is not None:
-            provenance["crop"] = box.provenance(int(in_box.sum()), n)
-        if deleted:
-            provenance["deleted"] = {"count": deleted, "kept": len(model), "of": n}
-        save_checkpoint(ed.file, model, background=ckpt.background, provenance=provenance,
-                        training=ckpt.training, force=ed.overwrite, views=getattr(ckpt, "views", None))
-        ed.unsaved = False
-        self.status = f"saved {len(model):,} of {n:,} Gaussians to {ed.file}"
-
-    def _update_frame_times(self) -> None:
-        """The times that frame stepping visits: a keyframed model's keys, else its dataset's frame times."""
-        keys = getattr(self.model, "times", None)
-        times = keys.tolist() if keys is not None else sorted({v.time for v in self._views})
-        self.playback.frame_times = tuple(float(t) for t in times)
-
-    @staticmethod
-    def _training_views(ckpt) -> list:
-        """The cameras of the dataset a checkpoint was trained on: those it records, else those of its dataset
-        folder when that is still readable."""
-        if getattr(ckpt, "views", None):
-            return list(ckpt.views)
-        root = (getattr(ckpt, "training", None) or {}).get("dataset")
-        if not root or not Path(root).is_dir():
-            return []
-        try:
-            return dataset_views(root, "train")
-        except SplatreelError:
-            return []
-
-
-    def _open(self, path: str) -> None:
-        if not self._drops_unsaved_edits("open the file"):
-            self._attempt(lambda: self.load(path))
-
-    def _attempt(self, action, done: str | None = None) -> bool:
-        """Run a user action; its one-line error (or `done`) goes to the panel's status line. True on success."""
-        try:
-            action()
-        except SplatreelError as exc:
-            self.status = f"error: {exc}"
-            return False
-        if done:
-            self.status = done
-        return True
-
+    # --- view, camera path, sorting, screenshots ---------------------------------------------------------------
     def _current_view(self, width: int, height: int):
         """(camera, model time) of this frame: the camera path while it plays, else the interactive rig."""
         t = self.playback.time
@@ -447,37 +429,20 @@ class AppState:
             return cam, t
         return self.controller.camera(width, height), t
 
+    def snap_to_view(self) -> None:
+        """Look through the dataset camera chosen in the View tab, paused at its time."""
+        v = self._views[self._view_index]
+        self.controller.snap(v.camera)
+        self.playback.time, self.playback.playing = v.time, False
+        self._path.playing = False
 
-    def _selection_markers(self, camera) -> np.ndarray:
-        """Crosses (`selection.marker_segments`) at the centres of the selected Gaussians that are shown, at the
-        displayed time."""
-        ed, t = self._editor, self.playback.time
-        selection = (self._generation, ed.edits.revision)
-        if ed.markers is None or ed.markers[0] != selection:  # a scan of the whole selection mask: on a change only
-            ed.markers = (selection, np.flatnonzero(ed.edits.selected[ed.shown_index]), None)
-        _, shown, centres = ed.markers
-        if not len(shown):
-            return np.zeros((0, 2, 3))
-        if centres is None or centres[0] != t:  # the centres move with time
-            centres = (t, centres_at(self.renderer.splats_at(t), t, shown))
-            ed.markers = (selection, shown, centres)
-        return marker_segments(centres[1], camera)
-
-
-    def _take_sort_result(self, res: SortResult | None) -> None:
-        if res is not None and res.tag == self._generation:
-            self._order = res
-            self._stats.sort_ms = res.ms
-            self._stats.sorts += 1
-
-    def _next_screenshot_name(self) -> str:
-        folder = Path(self.options.screenshot_dir)
-        for i in range(1, 100000):
-            p = folder / f"splatreel_{i:04d}.png"
-            if not p.exists():
-                return str(p)
-        raise GLError(f"{folder}: too many screenshots")
-
+    def add_path_key(self) -> None:
+        """Add the window's view now as the camera path's next key, `PathEditor.key_interval` after the last."""
+        pe = self._path
+        camera = self.controller.camera(*self.size)  # the window as it is now, maybe resized
+        time_at = pe.path.keys[-1].time + pe.key_interval if pe.path else 0.0
+        key = CameraKey.from_camera(time_at, camera, self.playback.time)
+        pe.path = pe.path.with_key(key) if pe.path else CameraPath([key], self.controller.up)
 
     def _path_or_error(self) -> CameraPath:
         if self._path.path is None:
@@ -504,11 +469,19 @@ class AppState:
         atomic_write_json(pe.file, path_as_nerfstudio(pe.path, width, height, time_range=self.model.time_range),
                           force=pe.overwrite)
 
-    def _apply_crop_edits(self) -> None:
-        """Show the edited box: at once when cropping is quick, else when the drag is released."""
-        ce = self._crop
-        if ce.box() != ce.shown and (not ce.dragging or ce.apply_ms < LIVE_CROP_MS):
-            self._apply_edits(self.playback.time)
-            if not len(self.renderer.model):  # as `--crop` says of such a box, instead of an empty window
-                self.status = f"the crop box holds none of the {len(self.model):,} Gaussians"
+    def _take_sort_result(self, res: SortResult | None) -> None:
+        """Keep a finished sort (`AsyncSorter`) when it is of the Gaussians shown now."""
+        if res is not None and res.tag == self._generation:
+            self._order = res
+            self._stats.sort_ms = res.ms
+            self._stats.sorts += 1
 
+    def _next_screenshot_name(self) -> str:
+        """Where the next screenshot taken with P goes: the first free ``splatreel_NNNN.png`` of the screenshot
+        folder."""
+        folder = Path(self.options.screenshot_dir)
+        for i in range(1, 100000):
+            p = folder / f"splatreel_{i:04d}.png"
+            if not p.exists():
+                return str(p)
+        raise GLError(f"{folder}: too many screenshots")

@@ -1,6 +1,7 @@
-"""What the desktop app's panels edit: plain dataclasses (the camera path being made, the crop box, deleted and
-selected Gaussians, the inspected pixel, the measuring tape) that `AppState` acts on and `panels` draws. No GL, no
-window, no imgui here.
+"""The desktop app's plain data (no GL, no window, no imgui): its start-up options (`AppOptions`), the panel's live
+numbers (`LiveStats`), what the panels edit (the camera path being made, the crop box, deleted and selected
+Gaussians, the inspected pixel, the measuring tape) and the JSON form of a camera in the app's report. `AppState`
+acts on them, `panels` draws them.
 """
 
 from __future__ import annotations
@@ -14,11 +15,85 @@ from splatreel.model import CropBox
 
 from .camera_path import CameraPath
 from .pick import PixelHit, PixelStack
+from .render_settings import FrameStats, RenderSettings
 from .selection import Edits
 
 
 @dataclass
+class AppOptions:
+    """Start-up settings of the desktop app (the ``splatreel view`` options)."""
+
+    size: tuple[int, int] = (1280, 720)
+    up: str = "z"
+    fov: float = 40.0
+    #: render mode, splat scale, SH degree, blending and background at start-up ...
+    settings: RenderSettings = field(default_factory=RenderSettings)
+    #: ... except that the background is the checkpoint's unless this is False
+    checkpoint_background: bool = True
+    play: bool = True
+    time: float | None = None
+    loop_seconds: float = 2.0
+    cameras: str | None = None
+    split: str | None = "train"
+    camera_path: str | None = None
+    #: start playing `camera_path` at once (a presentation, a scripted capture)
+    play_path: bool = False
+    screenshot_dir: str = "."
+    vsync: bool = True
+    #: share of the window's pixels drawn per axis at rest (`Resolution.scale`) ...
+    render_scale: float = 1.0
+    #: ... and whether to draw fewer while the camera moves or the animation plays, to keep frames within
+    #: `frame_budget_ms` ...
+    adaptive_resolution: bool = True
+    frame_budget_ms: float = 40.0
+    #: ... and True keeps the full resolution while the animation plays under a still camera
+    #: (`Resolution.sharp_playback`, ``--sharp-playback``)
+    sharp_playback: bool = False
+    #: automation (tests, scripted captures): stop after this many frames ...
+    exit_after: int | None = None
+    #: ... and save a screenshot of the last frame here, and a JSON report here
+    screenshot: str | None = None
+    report: str | None = None
+    force: bool = False
+    #: start with the crop box on, at these 6 numbers (min corner, max corner), as ``--crop``
+    crop: tuple[float, ...] | None = None
+    #: start with this window pixel (x, y from the top left) inspected, as a Ctrl+click there
+    inspect: tuple[int, int] | None = None
+    #: start with the Gaussians in this window rectangle (x0, y0, x1, y1 from the top left) selected, as a Shift+drag
+    select: tuple[float, float, float, float] | None = None
+
+
+@dataclass
+class LiveStats:
+    """The live numbers of the panel: the last frame's `FrameStats`, its wall time, the last sort, sort count."""
+
+    frame: FrameStats = field(default_factory=FrameStats)
+    frame_ms: float = 0.0
+    scale: float = 1.0
+    moving: bool = False
+    playing: bool = False
+    sort_ms: float = 0.0
+    sorts: int = 0
+
+
+def camera_to_json(camera) -> dict:
+    """A camera as plain JSON (c2w rows, intrinsics, size)."""
+    return {"c2w": np.asarray(camera.c2w).tolist(), "fx": camera.fx, "fy": camera.fy, "cx": camera.cx,
+            "cy": camera.cy, "width": camera.width, "height": camera.height}
+
+
+def camera_from_json(data: dict):
+    """The camera `camera_to_json` wrote (e.g. a report's, to render its view headless)."""
+    from splatreel.cameras import Camera
+
+    return Camera(np.array(data["c2w"]), data["fx"], data["fy"], data["cx"], data["cy"], data["width"],
+                  data["height"])
+
+
+@dataclass
 class PathEditor:
+    """The Path tab: the camera path being made (keys added from the window's view), its playback, and its file."""
+
     path: CameraPath | None = None
     file: str = "camera_path.json"
     key_interval: float = 1.0

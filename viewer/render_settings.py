@@ -29,7 +29,7 @@ VALUE_MODES: tuple[str, ...] = ("depth", "speed", "lifespan", "fade")
 #: How splats are blended; both give the reference composite (see `SplatRenderer`).
 COMPOSITE_ORDERS: tuple[str, ...] = ("front-to-back", "back-to-front")
 #: Splat primitives: "points" (one GL point per Gaussian, fastest on llvmpipe), "quads" (one instanced quad), or
-#: "auto" (points where they can be drawn, see `SplatRenderer._splat_runs`).
+#: "auto" (points where they can be drawn, see `draw_plan.splat_runs`).
 PRIMITIVES: tuple[str, ...] = ("auto", "points", "quads")
 
 

@@ -16,7 +16,7 @@ from .app_data import PATH_FORMATS, Inspector, MeasureTape
 from .camera_path import CameraPath
 from .overlay import SELECTION_COLOR
 from .pick import peak_time, vector_text
-from .renderer import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, RenderSettings
+from .render_settings import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, RenderSettings
 from .selection import normalise_rect
 from .state import AppState
 

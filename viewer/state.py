@@ -35,6 +35,8 @@ from .camera_path import CameraKey, CameraPath, dataset_views
 from .controls import CameraController, Playback, Resolution
 from .overlay import ellipsoid_segments
 from .pick import PixelStack, inspect_gaussian, vector_text
+from .render_settings import RenderSettings
+from .renderer import SplatRenderer
 from .selection import Edits, centres_at, in_rect, marker_segments
 from .sorting import SortKey, SortResult
 from .splats import needs_per_frame_upload, to_arrays
@@ -50,6 +52,15 @@ class AppState:
         self.options = o = options or AppOptions()
         self.status = ""
         self.report: dict = {"frames": 0}
+        #: set by the window (or a test) before `start` / `load`
+        self.renderer: SplatRenderer | None = None
+        #: what `load` opened: the model, its checkpoint and file name; the look, playback and camera rig are made
+        #: at the first load (from the options) and kept for the next models
+        self.model = self.checkpoint = self.framing = self._extent = None
+        self.source_name = ""
+        self.settings: RenderSettings | None = None
+        self.playback: Playback | None = None
+        self.controller: CameraController | None = None
         #: the window's framebuffer size (`AppWindow` keeps it current; the view, Add key and Save path use it)
         self.size: tuple[int, int] = tuple(o.size)
         self.resolution = Resolution(scale=o.render_scale, adaptive=o.adaptive_resolution, budget_ms=o.frame_budget_ms,
@@ -118,9 +129,9 @@ class AppState:
         name = str(source if isinstance(source, (str, os.PathLike)) else getattr(ckpt, "path", "model"))
         old = self._editor
         # Save edited writes <name>_edited.safetensors unless the user typed a file; overwriting is asked anew
-        file = old.file if old.file != edited_name(getattr(self, "source_name", "")) else edited_name(name)
+        file = old.file if old.file != edited_name(self.source_name) else edited_name(name)
         state = ("_crop", "_editor", "_measure", "model", "checkpoint", "_extent", "source_name")
-        before = {k: getattr(self, k, None) for k in state}
+        before = {k: getattr(self, k) for k in state}
         self._crop = self._initial_crop(extent, self.options.crop if first_load else None)
         self._editor = DeletionEditor(edits=Edits.of(len(model)), file=file)
         self.model, self.checkpoint, self._extent, self.source_name = model, ckpt, extent, name

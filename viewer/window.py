@@ -148,8 +148,13 @@ class AppWindow:
 
     def _handle_input(self, dt: float) -> None:
         """Mouse and keys (see `splatreel.viewer.app`), unless the panel has them."""
-        app = self.app
         io = imgui.get_io()
+        self._handle_mouse(io)
+        if not io.want_capture_keyboard:
+            self._handle_keys(io, dt)
+
+    def _handle_mouse(self, io) -> None:
+        app = self.app
         c = app.controller
         width, height = app.size
         win_w, win_h = glfw.get_window_size(self._window)
@@ -184,8 +189,10 @@ class AppWindow:
                 app._path.playing = False
             if io.mouse_wheel:
                 c.zoom(io.mouse_wheel)
-        if io.want_capture_keyboard:
-            return
+
+    def _handle_keys(self, io, dt: float) -> None:
+        app = self.app
+        c = app.controller
         key = imgui.Key
         down = imgui.is_key_down
         fwd = float(down(key.w)) - float(down(key.s))

@@ -20,7 +20,7 @@ from splatreel.cameras import orbit
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
 from splatreel.samples import trained_checkpoint
 from splatreel.train import losses
-from splatreel.viewer.app import camera_from_json
+from splatreel.viewer.app_data import camera_from_json
 from splatreel.viewer.camera_path import CameraKey, CameraPath
 from splatreel.viewer.renderer import RenderSettings, render_image
 from splatreel.viewer.synthetic import synthetic_model
@@ -121,7 +121,7 @@ def test_app_draws_plays_and_screenshots_like_headless(display, files):
 
 def test_playback_lowers_the_resolution_to_fit_the_frame_budget_unless_kept_sharp(display, files, tmp_path):
     """A still camera while the animation plays: with a frame budget no frame can meet, the playing frames are
-    drawn below full resolution (`Resolution.while_playing`), with ``--sharp-playback`` at full resolution; paused,
+    drawn below full resolution (`Resolution.sharp_playback`), with ``--sharp-playback`` at full resolution; paused,
     at full resolution (the depth-view test below)."""
     _, _, ckpt = files
     reports = []
@@ -200,7 +200,7 @@ def test_app_crop_box_shows_what_save_edited_writes(display, files, tmp_path):
     of `crop(model, box)`), draws the box's 12 edges, and "Save edited" writes those Gaussians with the box in
     the provenance (refusing to overwrite unless asked)."""
     from splatreel.model import CropBox, crop
-    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.state import AppOptions, AppState
     from splatreel.viewer.renderer import SplatRenderer, headless_context
 
     root, model, ckpt = files
@@ -220,7 +220,7 @@ def test_app_crop_box_shows_what_save_edited_writes(display, files, tmp_path):
     missed = run_view(display, str(ckpt), "--exit-after", "1", "--crop", "5", "5", "5", "6", "6", "6")
     assert missed.returncode == 1 and "holds none" in missed.stderr and "Traceback" not in missed.stderr
 
-    app = ViewerApp(ckpt, AppOptions(play=False))  # the panel's save action, on a headless renderer
+    app = AppState(ckpt, AppOptions(play=False))  # the panel's save action, on a headless renderer
     app.renderer = SplatRenderer(headless_context())
     app.load(str(ckpt))
     app._editor.file = str(tmp_path / "cropped.safetensors")
@@ -243,13 +243,13 @@ def test_app_crop_box_shows_what_save_edited_writes(display, files, tmp_path):
 def test_frame_stepping_visits_keyframes_else_dataset_frame_times(files):
     """The app's frame steps (arrow keys and buttons) go to a keyframed model's keys, else to the frame times of the
     dataset cameras it shows, else by one 30 FPS playback frame. `load` sets them; no window is needed for that."""
-    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.state import AppOptions, AppState
     from splatreel.viewer.camera_path import dataset_views
     from splatreel.viewer.renderer import SplatRenderer, headless_context
     from test_model import keyframed
 
     root, model, ckpt = files
-    app = ViewerApp(ckpt, AppOptions(play=False, cameras=str(root)))
+    app = AppState(ckpt, AppOptions(play=False, cameras=str(root)))
     app.renderer = SplatRenderer(headless_context())
     app._views = dataset_views(root, "train")  # as `run` does for --cameras, before the model loads
     app.load(ckpt)
@@ -320,24 +320,24 @@ def test_the_app_snaps_to_the_cameras_a_checkpoint_records(tmp_path):
     """A model trained by splatreel carries its training cameras: the app offers them (any layout, dataset gone);
     without them it falls back on the recorded dataset folder, and on nothing when that is gone too."""
     from splatreel.cameras import DatasetView
-    from splatreel.viewer.app import ViewerApp
+    from splatreel.viewer.state import AppState
 
     model = synthetic_model(20, seed=0)
     views = [DatasetView(f"v{i}", orbit(20, 90 * i, 3.0, fov_deg=40, width=64, height=48), 0.25 * i)
              for i in range(3)]
-    from splatreel.viewer.app import AppOptions
+    from splatreel.viewer.state import AppOptions
     from splatreel.viewer.renderer import SplatRenderer, headless_context
 
     trained = save_checkpoint(tmp_path / "trained.safetensors", model, views=views,
                               training={"dataset": str(tmp_path / "gone")})
-    app = ViewerApp(trained, AppOptions(play=False))
+    app = AppState(trained, AppOptions(play=False))
     app.renderer = SplatRenderer(headless_context())
     app.load(str(trained))  # as the window does: the recorded cameras become the dataset cameras
     assert [(v.name, v.time) for v in app._views] == [(v.name, v.time) for v in views]
     np.testing.assert_array_equal(app._views[1].camera.c2w, views[1].camera.c2w)
     assert app.playback.frame_times == (0.0, 0.25, 0.5)  # and frame steps visit their times
     old = save_checkpoint(tmp_path / "old.safetensors", model, training={"dataset": str(tmp_path / "gone")})
-    assert ViewerApp._training_views(load_checkpoint(old)) == []
+    assert AppState._training_views(load_checkpoint(old)) == []
     app.load(str(old))
     assert app._views == [] and app.playback.frame_times == ()
     app.renderer.release()

@@ -128,5 +128,5 @@ def test_playing_counts_as_a_changing_view_unless_playback_is_kept_sharp():
     r = Resolution()
     assert r.changing(moving=True, playing=False) and r.changing(moving=False, playing=True)
     assert not r.changing(moving=False, playing=False)
-    r.while_playing = False
+    r.sharp_playback = True
     assert r.changing(moving=True, playing=True) and not r.changing(moving=False, playing=True)

@@ -97,14 +97,14 @@ def test_edits_select_delete_undo_and_restore():
 @pytest.fixture()
 def app(tmp_path):
     """The desktop app's state on a headless renderer (no window), on a 2000-Gaussian model."""
-    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.state import AppOptions, AppState
 
     model = synthetic_model(2000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
     from splatreel.cameras import DatasetView
 
     ckpt = save_checkpoint(tmp_path / "m.safetensors", model, background=(1.0, 1.0, 1.0),
                            views=[DatasetView("train/r_000", orbit(20, 30, 2.0, fov_deg=40, width=64, height=64), 0.5)])
-    viewer = ViewerApp(ckpt, AppOptions(play=False))
+    viewer = AppState(ckpt, AppOptions(play=False))
     viewer.renderer = SplatRenderer(headless_context())
     viewer.load(str(ckpt))
     viewer.playback.time = 0.5

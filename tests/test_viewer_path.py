@@ -268,7 +268,7 @@ def test_a_keyframed_path_saves_as_nerfstudio_frames_that_load_back_onto_it(tmp_
 
 def test_the_app_saves_its_path_in_either_format(tmp_path):
     from splatreel.checkpoint import save_checkpoint
-    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.state import AppOptions, AppState as ViewerApp
     from splatreel.viewer.renderer import SplatRenderer, headless_context
     from splatreel.viewer.synthetic import synthetic_model
 

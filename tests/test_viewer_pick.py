@@ -125,11 +125,11 @@ def test_ellipsoid_rings_lie_at_two_sigma():
 def test_app_inspects_a_pixel_and_forgets_it_on_crop(tmp_path):
     """The app's Ctrl+click handler: `inspect` fills the panel and the report; the inspected Gaussian's ellipsoid
     and rows follow the time; a crop (new indices) clears it."""
-    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.state import AppOptions, AppState
 
     model = synthetic_model(2000, seed=11, sh_degree=1, radius=0.4, scale=0.02, speed=0.3)
     ckpt = save_checkpoint(tmp_path / "m.safetensors", model)
-    app = ViewerApp(ckpt, AppOptions(play=False))
+    app = AppState(ckpt, AppOptions(play=False))
     app.renderer = SplatRenderer(headless_context())
     app.load(ckpt)
     cam = orbit(20, 30, 2.0, fov_deg=40, width=64, height=64)
@@ -165,18 +165,18 @@ def test_surface_depth_is_where_half_the_pixel_is_accumulated():
 
 
 def test_app_measures_the_distance_between_two_surfaces(tmp_path):
-    """Alt+click twice (`ViewerApp.measure`): two small opaque blobs at known places, clicked at the pixels their
+    """Alt+click twice (`AppState.measure`): two small opaque blobs at known places, clicked at the pixels their
     centres project to, are measured at their true distance (to the half-pixel the click is rounded to); a third
     click starts again; the background is a one-line error."""
     from splatreel.model import static_gaussians4d
-    from splatreel.viewer.app import AppOptions, ViewerApp
+    from splatreel.viewer.state import AppOptions, AppState
 
     ends = np.array([[-0.5, 0.0, 0.1], [0.6, 0.8, -0.3]])
     model = static_gaussians4d(torch.tensor(ends), torch.full((2, 3), 0.04, dtype=torch.float64),
                                torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64),
                                torch.full((2,), 0.99, dtype=torch.float64), torch.ones(2, 3, dtype=torch.float64))
     ckpt = save_checkpoint(tmp_path / "two.safetensors", model)
-    app = ViewerApp(ckpt, AppOptions(play=False))
+    app = AppState(ckpt, AppOptions(play=False))
     app.renderer = SplatRenderer(headless_context())
     app.load(str(ckpt))
     cam = look_at((0.0, -4.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=40, width=128, height=128)

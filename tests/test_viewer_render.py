@@ -437,7 +437,7 @@ def test_boxes_of_an_order_sorted_at_another_resolution_hold_the_true_ones(model
     the new size, must still contain every pixel each Gaussian reaches (else points would clip and hidden-tile
     skipping would drop visible Gaussians), with a std-dev cap too, and for sizes that scale the two axes
     differently (rounding). (Orders with a screen-radius cap are sorted again instead: the next test.)"""
-    from splatreel.viewer.renderer import _boxes_for
+    from splatreel.viewer.draw_plan import rescaled_boxes as _boxes_for
     from splatreel.viewer.splats import to_arrays
     from splatreel.viewer.sorting import Footprint, depth_order
 

@@ -24,7 +24,8 @@ _EXPORTS = {
     "sorting": ("AsyncSorter", "SortResult", "depth_order"),
     "trajectory": ("TIME_MODES", "TRAJECTORIES", "Framing", "frame_model", "orbit_cameras", "path_cameras",
                    "scene_times"),
-    "app": ("AppOptions", "ViewerApp", "run_app"),
+    "app": ("AppOptions", "run_app"),
+    "state": ("AppState",),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 __all__ = sorted(_WHERE)

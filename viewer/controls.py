@@ -200,7 +200,7 @@ class Resolution:
     """Render resolution of the app, as a share of the window's pixels per axis.
 
     At rest the app draws at `scale` (1 = every window pixel). While the view changes and `adaptive` is on (the
-    camera moves, or with `while_playing` the animation plays: `changing`), it draws at the largest of
+    camera moves, or the animation plays unless `sharp_playback`: `changing`), it draws at the largest of
     `RESOLUTION_STEPS` (at most `scale`) whose predicted draw time fits `budget_ms`, and the image is stretched to
     the window; the first frame at rest (still camera, paused) is sharp again.
 
@@ -216,7 +216,8 @@ class Resolution:
     scale: float = 1.0
     adaptive: bool = True
     budget_ms: float = 40.0
-    while_playing: bool = True
+    #: keep the full resolution while the animation plays under a still camera (only camera moves lower it)
+    sharp_playback: bool = False
     memory: int = 120
     _measured: dict = field(default_factory=dict)  # step -> (running average of draw ms, frame number)
     _frame: int = 0
@@ -263,7 +264,7 @@ class Resolution:
     def changing(self, moving: bool, playing: bool) -> bool:
         """Whether a frame whose camera is `moving` and whose model time is `playing` (each: changed since the frame
         before; scrubbing and frame steps change the time too) may be drawn at a lower resolution (`choose`)."""
-        return moving or (playing and self.while_playing)
+        return moving or (playing and not self.sharp_playback)
 
     def choose(self, changing: bool, width: int, height: int) -> float:
         """The scale of the next frame in a window of `width` x `height` pixels; `changing`: the view is changing

@@ -8,7 +8,7 @@ Per frame, three GL passes:
    this once per Gaussian instead of once per quad corner is what makes a software rasterizer (Mesa llvmpipe)
    usable.
 2. **draw** (``splat_draw.glsl``): one splat per footprint, a GL point sprite over its bounding box or an
-   instanced quad along its axes, whichever is cheaper (`SplatRenderer._splat_runs`; quads always for the
+   instanced quad along its axes, whichever is cheaper (`draw_plan.splat_runs`; quads always for the
    outline/centre modes and for Gaussians larger than the biggest point), premultiplied alpha into a float32
    target cleared to 0, so colour = sum c a T and alpha = 1 - T exactly as the reference rasterizer composites.
    Either back to front (ONE, ONE_MINUS_SRC_ALPHA), or (default) front to back (ONE_MINUS_DST_ALPHA, ONE). Front
@@ -27,174 +27,26 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from splatreel.cameras import Camera
-from splatreel.constants import ALPHA_THRESHOLD, EPS2D, NEAR_PLANE, TILE_SIZE
-from splatreel.covariance import check_fade
+from splatreel.constants import TILE_SIZE
 from splatreel.errors import GLError
 from splatreel.gl import EGLCurrent, create_headless_context, load_program, with_context
 
 from . import splats as splatlib
+from .draw_plan import (MIN_HIDEABLE, OCCLUSION_TILE, POINT_MODES, draw_stages, hidden_in_tiles, rescaled_boxes,
+                        saturated_table, splat_runs)
+from .gpu_buffers import SPLAT_BYTES, SPLAT_FIELDS, RenderTargets, SplatBuffers, sh_texture_size
 from .pick import PixelStack, composite_pixel
+from .render_settings import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings
 from .sorting import Footprint, SortKey, SortResult, depth_order, footprint_caps
 
-#: Display modes, in the order of the app's combo box.
-RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers", "speed", "lifespan", "fade")
-_MODE_ALIASES = {"colour": "color", "rgb": "color", "centres": "centers", "points": "centers",
-                 "ellipsoids": "outlines", "ellipses": "outlines", "velocity": "speed", "motion": "speed",
-                 "lifetime": "lifespan", "duration": "lifespan", "temporal-opacity": "fade", "temporal": "fade",
-                 "marginal": "fade", "fading": "fade"}
-#: Modes that show a per-Gaussian value (camera depth, speed, visible time span, temporal opacity factor) through a
-#: colour map over `RenderSettings.value_range`.
-VALUE_MODES: tuple[str, ...] = ("depth", "speed", "lifespan", "fade")
-#: How splats are blended; both give the reference composite (see `SplatRenderer`).
-COMPOSITE_ORDERS: tuple[str, ...] = ("front-to-back", "back-to-front")
-#: Bytes of one pre-processed Gaussian (4 vec4: geometry, axes, colour, tile rectangle).
-_SPLAT_BYTES = 64
-#: The vec4 fields of a pre-processed Gaussian, in buffer order (splat_draw.glsl attribute names).
-_SPLAT_FIELDS = ("i_geom", "i_axes", "i_color", "i_rect")
-_SH_TEX_WIDTH = 4096
-#: Front to back, splats are drawn in stages with early-stop masks in between; a stage has at least this many
-#: Gaussians (the masks would cost more than they save) ...
-_MIN_STAGE = 2048
-#: ... and fewer than this many visible Gaussians are drawn in one stage.
-_MIN_STAGED = 16384
-#: Staging (and its read-backs, which stall the pipeline) only pays when at least this share of the visible
-#: Gaussians is expected to lie behind saturated pixels (`SortResult.hideable`). Measured on llvmpipe: estimates
-#: of 0.32-0.38 drew 10-30% faster in one stage, 0.63 and above 1.5-6x faster staged.
-_MIN_HIDEABLE = 0.5
-#: Tile edge (pixels) of the saturation read-back used to skip hidden Gaussians.
-_OCCLUSION_TILE = 4
-#: Splat primitives: "points" (one GL point per Gaussian, fastest on llvmpipe), "quads" (one instanced quad), or
-#: "auto" (points where they can be drawn, see `SplatRenderer._splat_runs`).
-PRIMITIVES: tuple[str, ...] = ("auto", "points", "quads")
-#: What a quad costs more than a point, in shaded pixels (llvmpipe, 2 cores: ~1.2 us vs ~0.3 us per splat set-up,
-#: ~3.4 ns per pixel); `SplatRenderer._splat_runs` weighs it against the points' extra pixels.
-_QUAD_EXTRA_COST = 260.0
-#: At most this many alternating point/quad runs per batch; beyond, the batch is drawn as quads in one call.
-_MAX_RUNS = 16
-#: Modes drawn with points when the primitive allows; outlines and centres need the quad's own footprint.
-_POINT_MODES = ("color", "depth", "alpha", "speed", "lifespan", "fade")
-
-
-def parse_mode(name: str) -> str:
-    """Canonical render mode name; accepts British spellings and a few aliases."""
-    mode = _MODE_ALIASES.get(str(name).lower(), str(name).lower())
-    if mode not in RENDER_MODES:
-        raise GLError(f"unknown render mode {name!r}; expected one of {', '.join(RENDER_MODES)}")
-    return mode
-
-
-@dataclass
-class RenderSettings:
-    """How to draw a frame.
-
-    Attributes:
-        mode: one of `RENDER_MODES`.
-        splat_scale: multiplies every Gaussian's std-devs (1 = as trained).
-        sh_degree: displayed SH degree (None = the model's).
-        background: RGB in [0, 1] behind the splats.
-        transparent: keep the background transparent (premultiplied colour + alpha) instead of compositing.
-        value_range: (low, high) of the colour map of the depth mode (near, far camera depth), the speed mode
-            (slow, fast, in world units per unit of model time), the lifespan mode (brief, long, in model time)
-            and the fade mode (temporal opacity factor); None = the 2nd-98th percentile of the drawn depths of each
-            frame (`render_frames` fixes one range for a whole video), 0 to the model's `splats.typical_speed`, 0
-            to the model's time span, and 0 to 1.
-        composite: "front-to-back" (under-blending in batches, pixels stop once their transmittance reaches
-            TRANSMITTANCE_THRESHOLD, like the reference rasterizer) or "back-to-front" (over-blending, no early
-            stop). Same image either way (to float rounding and the 1e-4 early-stop residue).
-        primitive: one of `PRIMITIVES`; the same image either way, "auto" is the fast choice.
-        max_std_dev: cap on how far a splat reaches, in std-devs (None = to the alpha cut-off, as the reference);
-            see `Footprint`.
-        max_screen_radius: cap on a splat's radius as a share of the image height (None = none).
-        near_plane: Gaussians at or in front of this camera depth are not drawn (the trainer's NEAR_PLANE, 0.2).
-        temporal_fade: one of `splatreel.covariance.TEMPORAL_FADES`: "cut" (the reference: a Gaussian drops out once
-            its temporal marginal falls to 0.05) or "smooth" (faded out over the marginal's last doubling, so that
-            nothing pops as time plays).
-    """
-
-    mode: str = "color"
-    splat_scale: float = 1.0
-    sh_degree: int | None = None
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    transparent: bool = False
-    value_range: tuple[float, float] | None = None
-    composite: str = "front-to-back"
-    primitive: str = "auto"
-    max_std_dev: float | None = None
-    max_screen_radius: float | None = None
-    near_plane: float = NEAR_PLANE
-    temporal_fade: str = "cut"
-
-    def __post_init__(self) -> None:
-        self.mode = parse_mode(self.mode)
-        try:
-            check_fade(self.temporal_fade)
-        except ValueError as exc:
-            raise GLError(str(exc)) from None
-        if self.primitive not in PRIMITIVES:
-            raise GLError(f"unknown splat primitive {self.primitive!r}; expected one of {', '.join(PRIMITIVES)}")
-        if self.composite not in COMPOSITE_ORDERS:
-            raise GLError(f"unknown composite order {self.composite!r}; expected one of {', '.join(COMPOSITE_ORDERS)}")
-        bg = tuple(float(x) for x in self.background)
-        if len(bg) != 3 or not all(np.isfinite(bg)):
-            raise GLError(f"background must be 3 finite numbers, got {self.background!r}")
-        self.background = bg  # type: ignore[assignment]
-        self.footprint  # checks the splat scale, the caps and the near plane
-
-    @property
-    def footprint(self) -> Footprint:
-        """Which splats reach the screen and how far (`sorting.Footprint`): splat scale, caps and near plane.
-        Raises GLError (one line) on a bad value, e.g. one typed into the app's panel."""
-        try:
-            return Footprint(self.splat_scale, math.inf if self.max_std_dev is None else self.max_std_dev,
-                             math.inf if self.max_screen_radius is None else self.max_screen_radius, self.near_plane)
-        except ValueError as exc:
-            raise GLError(str(exc)) from None
-
-
-@dataclass
-class FrameStats:
-    """What a frame cost and drew: `total` Gaussians, `visible` after culling (time, near plane, frustum) and
-    sorted, `drawn` after skipping those hidden behind opaque pixels."""
-
-    sort_ms: float = 0.0
-    draw_ms: float = 0.0
-    upload_ms: float = 0.0
-    visible: int = 0
-    drawn: int = 0
-    total: int = 0
-    resorted: bool = False
-    #: the colour map's range in the depth and speed modes
-    value_range: tuple[float, float] = (0.0, 1.0)
-
-    @property
-    def frame_ms(self) -> float:
-        return self.sort_ms + self.draw_ms + self.upload_ms
-
-
-@dataclass
-class _Targets:
-    size: tuple[int, int]
-    accum_tex: object
-    depth_rb: object
-    accum_fbo: object
-    mask_fbo: object
-    display_tex: object
-    display_fbo: object
-    tiles_tex: object
-    tiles_fbo: object
-
-    def release(self) -> None:
-        for obj in (self.accum_fbo, self.mask_fbo, self.display_fbo, self.tiles_fbo, self.accum_tex, self.depth_rb,
-                    self.display_tex, self.tiles_tex):
-            obj.release()
-
-
-
+# the settings' names come with the renderer's: callers import its whole API from here
+__all__ = ["COMPOSITE_ORDERS", "RENDER_MODES", "VALUE_MODES", "FrameStats", "RenderSettings", "SplatRenderer",
+           "headless_context", "render_image"]
 
 class SplatRenderer:
     """Draws a splatreel model with a moderngl context (standalone EGL or a window's).
@@ -216,11 +68,11 @@ class SplatRenderer:
         self._gl_depth = 0
         self._init_programs()
         self._pre_progs: dict[tuple, object] = {}
-        self._targets: _Targets | None = None
+        self._targets: RenderTargets | None = None
+        self._gpu: SplatBuffers | None = None
         self._model = None
         self._typical_speed: float | None = None
         self.splats: splatlib.SplatArrays | None = None
-        self._gpu_n = 0
         self._order: SortResult | None = None
         if model is not None:
             self.set_model(model)
@@ -240,7 +92,7 @@ class SplatRenderer:
         self._point_margin = int(math.ceil(self._max_point / 2)) + 1
         self._max_viewport = min(int(v) for v in (ctx.info.get("GL_MAX_VIEWPORT_DIMS") or (16384, 16384)))
         self._resolve_prog, self._mask_prog, self._tiles_prog = (
-            load_program(ctx, "splat_screen", {"SCREEN_PASS": k, "OCCLUSION_TILE": _OCCLUSION_TILE}) for k in range(3))
+            load_program(ctx, "splat_screen", {"SCREEN_PASS": k, "OCCLUSION_TILE": OCCLUSION_TILE}) for k in range(3))
         self._resolve_vao = ctx.vertex_array(self._resolve_prog, [])
         self._mask_vao = ctx.vertex_array(self._mask_prog, [])
         self._tiles_vao = ctx.vertex_array(self._tiles_prog, [])
@@ -284,59 +136,26 @@ class SplatRenderer:
         return self._typical_speed
 
     def _upload(self, arrays: splatlib.SplatArrays) -> None:
-        ctx = self.ctx
-        n = len(arrays)
+        n, texels = len(arrays), arrays.sh_texels
         attrs = np.concatenate([arrays.mean_t, arrays.motion, arrays.cov], axis=1).astype(np.float32)
-        texels = arrays.sh_texels
-        width = _SH_TEX_WIDTH
-        rows = max(1, -(-n * texels // width))
-        max_size = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
-        if rows > max_size:
-            width = max_size
-            rows = max(1, -(-n * texels // width))
-            if rows > max_size:
-                raise GLError(f"{n:,} Gaussians with {arrays.num_coeffs} colour coefficients exceed this GPU's "
-                              f"texture limits ({max_size}x{max_size}); lower the SH degree")
+        max_size = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
+        width, rows = sh_texture_size(n, texels, arrays.num_coeffs, max_size)
         sh = np.zeros((rows * width, 4), np.float32)
         sh[: n * texels] = arrays.sh.reshape(-1, 4)
-        old = self.splats
-        same_layout = (old is not None and self._gpu_n == n and old.sh_texels == texels
-                       and (old.sh_degree, old.sh_degree_t) == (arrays.sh_degree, arrays.sh_degree_t)
-                       and self._sh_tex.size == (width, rows))
-        if same_layout:  # keyframed re-slice: rewrite in place
-            self._attr_buf.write(attrs.tobytes())
-            self._sh_tex.write(sh.tobytes())
+        old, gpu = self.splats, self._gpu
+        if (gpu is not None and gpu.count == n and old.sh_texels == texels and gpu.sh.size == (width, rows)
+                and (old.sh_degree, old.sh_degree_t) == (arrays.sh_degree, arrays.sh_degree_t)):
+            gpu.write(attrs, sh)  # keyframed re-slice: rewrite in place
         else:
             self._release_model()
-            cap = max(n, 1)
-            self._attr_buf = ctx.buffer(attrs.tobytes() if n else b"\0" * 64)
-            self._sh_tex = ctx.texture((width, rows), 4, sh.tobytes(), dtype="f4")
-            self._sh_tex.filter = (0x2600, 0x2600)  # GL_NEAREST: texelFetch only
-            self._ibo = ctx.buffer(reserve=4 * cap)
-            self._splat_buf = ctx.buffer(reserve=_SPLAT_BYTES * cap)
-            self._splat_vaos = {}
-            for kind, prog in self._splat_progs.items():
-                used = [name for name in _SPLAT_FIELDS if name in prog]
-                fmt = " ".join("4f" if name in used else "16x" for name in _SPLAT_FIELDS)
-                fmt += "" if kind == "points" else "/i"  # a quad is one instance of a 4-vertex strip
-                self._splat_vaos[kind] = ctx.vertex_array(prog, [(self._splat_buf, fmt, *used)])
             prog = self._pre_program(arrays.sh_degree, arrays.sh_degree_t, texels, width)
-            self._pre_vao = ctx.vertex_array(
-                prog, [(self._attr_buf, "4f 4f 4f 4f", "a_mean_t", "a_motion", "a_cov_a", "a_cov_b")],
-                index_buffer=self._ibo, index_element_size=4)
-            self._pre_prog = prog
-        self._gpu_n = n
+            self._gpu = SplatBuffers.create(self.ctx, attrs, sh, (width, rows), prog, self._splat_progs)
         self.splats = arrays
 
     def _release_model(self) -> None:
-        for vao in getattr(self, "_splat_vaos", {}).values():
-            vao.release()
-        self._splat_vaos = {}
-        for name in ("_pre_vao", "_attr_buf", "_sh_tex", "_ibo", "_splat_buf"):
-            obj = getattr(self, name, None)
-            if obj is not None:
-                obj.release()
-                setattr(self, name, None)
+        if self._gpu is not None:
+            self._gpu.release()
+            self._gpu = None
 
     def _pre_program(self, degree: int, degree_t: int, texels: int, width: int):
         key = (degree, degree_t, texels, width)
@@ -367,23 +186,11 @@ class SplatRenderer:
         return self._order
 
     # --- targets ----------------------------------------------------------------------------------------------
-    def _ensure_targets(self, size: tuple[int, int]) -> _Targets:
-        if self._targets is not None and self._targets.size == size:
-            return self._targets
-        if self._targets is not None:
-            self._targets.release()
-        max_size = int(self.ctx.info.get("GL_MAX_RENDERBUFFER_SIZE", 16384))
-        if size[0] > max_size or size[1] > max_size:
-            raise GLError(f"image size {size[0]}x{size[1]} exceeds this GPU's limit of {max_size} pixels")
-        ctx = self.ctx
-        accum = ctx.texture(size, 4, dtype="f4")
-        accum.filter = (0x2600, 0x2600)
-        accum.repeat_x = accum.repeat_y = False  # a stretched resolve must not blend in the opposite edge
-        depth = ctx.depth_renderbuffer(size)
-        display = ctx.texture(size, 4, dtype="f4")
-        tiles = ctx.texture((-(-size[0] // _OCCLUSION_TILE), -(-size[1] // _OCCLUSION_TILE)), 1, dtype="f1")
-        self._targets = _Targets(size, accum, depth, ctx.framebuffer([accum], depth), ctx.framebuffer([], depth),
-                                 display, ctx.framebuffer([display]), tiles, ctx.framebuffer([tiles]))
+    def _ensure_targets(self, size: tuple[int, int]) -> RenderTargets:
+        if self._targets is None or self._targets.size != size:
+            if self._targets is not None:
+                self._targets.release()
+            self._targets = RenderTargets.create(self.ctx, size)
         return self._targets
 
     # --- drawing ----------------------------------------------------------------------------------------------
@@ -403,7 +210,7 @@ class SplatRenderer:
             sync: wait for the GPU so that ``draw_ms`` is the real cost.
         """
         settings = settings or RenderSettings()
-        stats = FrameStats(total=self._gpu_n)
+        stats = FrameStats(total=self._gpu.count if self._gpu is not None else 0)
         start = time.perf_counter()
         splats = self.splats_at(t)
         stats.upload_ms = (time.perf_counter() - start) * 1e3
@@ -431,7 +238,7 @@ class SplatRenderer:
     def _draw_splats(self, camera: Camera, t: float, settings: RenderSettings, footprint: Footprint, splats,
                      order: SortResult) -> int:
         """Pre-pass + splats (points and/or quads, `_splat_runs`). Front to back, when `SortResult.hideable` says
-        it pays, the order is drawn in stages (`_stages`); after each stage
+        it pays, the order is drawn in stages (`draw_stages`); after each stage
         the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD, where the reference rasterizer stops) are
         marked in the depth buffer, so later fragments there are rejected before shading, and their tiles are
         read back, so later Gaussians whose screen box lies entirely in saturated tiles are not drawn at all.
@@ -440,7 +247,7 @@ class SplatRenderer:
         front_to_back = settings.composite == "front-to-back"
         # an order sorted for another view (the app draws with the newest finished sort): its boxes may be too small
         stale = order.key != SortKey.of(camera, t, footprint)
-        boxes = _boxes_for(order, camera) if stale else order.boxes
+        boxes = rescaled_boxes(order, camera) if stale else order.boxes
         indices = order.order[::-1] if front_to_back else order.order
         boxes = boxes[::-1] if front_to_back else boxes
         self._set_pre_uniforms(camera, t, settings, splats, footprint)
@@ -450,9 +257,9 @@ class SplatRenderer:
                           u_max_point=self._max_point)
         _set_uniforms(self._mask_prog, u_accum=0)
         _set_uniforms(self._tiles_prog, u_accum=0)
-        staged = front_to_back and settings.mode in _POINT_MODES and \
-            order.hideable >= _MIN_HIDEABLE
-        stages = _stages(len(indices)) if staged else [(0, len(indices))]
+        staged = front_to_back and settings.mode in POINT_MODES and \
+            order.hideable >= MIN_HIDEABLE
+        stages = draw_stages(len(indices)) if staged else [(0, len(indices))]
         ctx.blend_equation = ctx.FUNC_ADD
         ctx.depth_func = "<"
         saturated, drawn = None, 0
@@ -460,7 +267,7 @@ class SplatRenderer:
         for k, (first, end) in enumerate(stages):
             idx, stage_boxes = indices[first:end], boxes[first:end]
             if saturated is not None:
-                keep = ~_hidden(stage_boxes, saturated, camera.height)
+                keep = ~hidden_in_tiles(stage_boxes, saturated, camera.height)
                 idx, stage_boxes = idx[keep], stage_boxes[keep]
             self._draw_stage(np.ascontiguousarray(idx, dtype=np.uint32), front_to_back, len(stages) > 1,
                              self._splat_runs(settings, stage_boxes, stale))
@@ -476,11 +283,11 @@ class SplatRenderer:
 
     def _mark_saturated(self, covered: np.ndarray) -> np.ndarray:
         """Depth 0 on the saturated pixels (alpha >= 1 - TRANSMITTANCE_THRESHOLD); returns the summed-area table
-        of the saturated tiles (`_saturated_table`). Both passes only visit `covered` (x0, y0, x1, y1: the pixels
+        of the saturated tiles (`saturated_table`). Both passes only visit `covered` (x0, y0, x1, y1: the pixels
         drawn so far, top-down), outside of which nothing can be saturated."""
         ctx, tg = self.ctx, self._targets
         w, h = tg.size
-        tile = _OCCLUSION_TILE
+        tile = OCCLUSION_TILE
         x0, x1 = int(np.clip(np.floor(covered[0]), 0, w)), int(np.clip(np.ceil(covered[2]), 0, w))
         y0, y1 = int(np.clip(np.floor(h - covered[3]), 0, h)), int(np.clip(np.ceil(h - covered[1]), 0, h))  # GL
         ctx.disable(ctx.BLEND)
@@ -502,53 +309,20 @@ class SplatRenderer:
             tg.tiles_fbo.scissor = None
         tw, th = tg.tiles_tex.size
         flags = np.frombuffer(tg.tiles_fbo.read(components=1, dtype="f1"), np.uint8).reshape(th, tw)
-        return _saturated_table(flags[::-1] > 127)
+        return saturated_table(flags[::-1] > 127)
 
     def _splat_runs(self, settings: RenderSettings, boxes: np.ndarray, stale: bool = False) -> list[tuple]:
-        """How to draw a batch of Gaussians (screen boxes `boxes`, see `SortResult`, in draw order): contiguous
-        runs ``(first, end, kind)``, kind one of "points", "quads" (instanced) or "overlay" (quads of the
-        outline/centre modes).
-
-        "auto" draws as points every Gaussian that fits the largest point (with 2x headroom when the boxes are
-        `stale`, i.e. sorted for another view), unless the cost model says quads are cheaper for the batch; the
-        rest as quads. The model was measured on llvmpipe, in pixel-equivalents: a point shades its whole
-        bounding square but costs little to set up; a quad shades only its oriented rectangle but costs
-        `_QUAD_EXTRA_COST` pixels more (two triangles, four vertices). Points win for small or round splats,
-        quads for large elongated ones.
-        """
-        n = boxes.shape[0]
-        if settings.mode not in _POINT_MODES:
-            return [(0, n, "overlay")]
-        if settings.primitive == "quads" or not n:
-            return [(0, n, "quads")]
-        if max(self._targets.size) + 2 * self._point_margin > self._max_viewport:
-            if settings.primitive == "points":
-                raise GLError(f"a {self._targets.size[0]}x{self._targets.size[1]} image is too large to draw with "
-                              f"points on this context (viewport limit {self._max_viewport}); use the 'auto' or "
-                              "'quads' primitive")
-            return [(0, n, "quads")]
-        side = 2.0 * np.maximum(boxes[:, 2], boxes[:, 3]) - 1.0  # the point size splat_draw.glsl asks for
-        if settings.primitive == "points":
-            if float(side.max()) > self._max_point:
-                raise GLError(f"splats up to {float(side.max()):.0f} px wide do not fit this context's points (at "
-                              f"most {self._max_point:.0f} px); use the 'auto' or 'quads' primitive")
-            return [(0, n, "points")]
-        fits = side <= (0.5 if stale else 1.0) * self._max_point
-        extra = float(np.sum(side[fits] ** 2, dtype=np.float64) - np.sum(boxes[fits, 4], dtype=np.float64))
-        if not fits.any() or extra >= _QUAD_EXTRA_COST * int(fits.sum()):
-            return [(0, n, "quads")]
-        change = np.flatnonzero(fits[1:] != fits[:-1]) + 1
-        bounds = [0, *change.tolist(), n]
-        if len(bounds) - 1 > _MAX_RUNS:  # oversized splats scattered through the batch: one draw call instead
-            return [(0, n, "quads")]
-        return [(a, b, "points" if fits[a] else "quads") for a, b in zip(bounds[:-1], bounds[1:])]
+        """`draw_plan.splat_runs` of a batch at this context's point limits and the current image size."""
+        return splat_runs(boxes, settings.mode, settings.primitive, image_size=self._targets.size,
+                          max_point=self._max_point, point_margin=self._point_margin,
+                          max_viewport=self._max_viewport, stale=stale)
 
     def _draw_stage(self, idx: np.ndarray, front_to_back: bool, depth_test: bool, runs: list[tuple]) -> None:
         """Pre-process the Gaussians `idx` (in draw order) and draw them in `runs` (`_splat_runs`)."""
         if not idx.shape[0]:
             return
         ctx, tg = self.ctx, self._targets
-        self._preprocess(idx, self._splat_buf)
+        self._preprocess(idx, self._gpu.splats)
         ctx.enable(ctx.BLEND | ctx.DEPTH_TEST) if depth_test else ctx.enable(ctx.BLEND)
         ctx.blend_func = ((ctx.ONE_MINUS_DST_ALPHA, ctx.ONE) if front_to_back
                           else (ctx.ONE, ctx.ONE_MINUS_SRC_ALPHA))
@@ -560,12 +334,12 @@ class SplatRenderer:
                 if kind == "points":
                     ctx.viewport = (-m, -m, w + 2 * m, h + 2 * m)  # splat_draw.glsl: points clip by their centre
                     ctx.enable(ctx.PROGRAM_POINT_SIZE)
-                    self._splat_vaos["points"].render(ctx.POINTS, vertices=end - first, first=first)
+                    self._gpu.splat_vaos["points"].render(ctx.POINTS, vertices=end - first, first=first)
                 else:
                     ctx.disable(ctx.PROGRAM_POINT_SIZE)
                     ctx.viewport = (0, 0, w, h)
                     self._bind_instances(kind, first)
-                    self._splat_vaos[kind].render(ctx.TRIANGLE_STRIP, vertices=4, instances=end - first)
+                    self._gpu.splat_vaos[kind].render(ctx.TRIANGLE_STRIP, vertices=4, instances=end - first)
         finally:
             ctx.disable(ctx.PROGRAM_POINT_SIZE)
             ctx.viewport = (0, 0, w, h)
@@ -573,30 +347,30 @@ class SplatRenderer:
 
     def _preprocess(self, idx: np.ndarray, out) -> None:
         """Run the pre-pass (uniforms already set) on the Gaussians `idx` (uint32, in this order) into buffer `out`:
-        one `_SPLAT_BYTES` record each, in the same order."""
+        one `SPLAT_BYTES` record each, in the same order."""
         ctx = self.ctx
-        self._ibo.write(idx.tobytes())
-        self._sh_tex.use(0)
+        self._gpu.indices.write(idx.tobytes())
+        self._gpu.sh.use(0)
         ctx.disable(ctx.BLEND | ctx.DEPTH_TEST)
         # a draw needs a complete framebuffer even with rasterizer discard (an EGL context has none of its own)
         self._targets.accum_fbo.use()
-        self._pre_vao.transform(out, ctx.POINTS, vertices=idx.shape[0])
+        self._gpu.pre_vao.transform(out, ctx.POINTS, vertices=idx.shape[0])
 
     def _bind_instances(self, kind: str, first: int) -> None:
         """Point the per-instance attributes of quad VAO `kind` at splat `first` of the splat buffer (GL 3.3 has
         no base instance)."""
-        prog, vao = self._splat_progs[kind], self._splat_vaos[kind]
-        for k, name in enumerate(_SPLAT_FIELDS):
+        prog, vao = self._splat_progs[kind], self._gpu.splat_vaos[kind]
+        for k, name in enumerate(SPLAT_FIELDS):
             if name in prog:
-                vao.bind(prog[name].location, "f", self._splat_buf, "4f", offset=first * _SPLAT_BYTES + 16 * k,
-                         stride=_SPLAT_BYTES, divisor=1)
+                vao.bind(prog[name].location, "f", self._gpu.splats, "4f", offset=first * SPLAT_BYTES + 16 * k,
+                         stride=SPLAT_BYTES, divisor=1)
 
     def _set_pre_uniforms(self, camera: Camera, t: float, settings: RenderSettings,
                           splats: splatlib.SplatArrays, footprint: Footprint) -> None:
         w2c = camera.w2c
         degree = splats.sh_degree if settings.sh_degree is None else max(0, min(int(settings.sh_degree),
                                                                                  splats.sh_degree))
-        _set_uniforms(self._pre_prog, u_rot=np.ascontiguousarray(w2c[:3, :3].T, np.float32),  # column-major
+        _set_uniforms(self._gpu.pre_prog, u_rot=np.ascontiguousarray(w2c[:3, :3].T, np.float32),  # column-major
                       u_trans=w2c[:3, 3], u_campos=camera.position,
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
@@ -642,7 +416,7 @@ class SplatRenderer:
         self._set_pre_uniforms(camera, t, settings, splats, footprint)
         if self._targets is None:  # the pre-pass needs a framebuffer; any size will do, the last image is kept
             self._ensure_targets((camera.width, camera.height))
-        out = self.ctx.buffer(reserve=_SPLAT_BYTES * idx.shape[0])
+        out = self.ctx.buffer(reserve=SPLAT_BYTES * idx.shape[0])
         try:
             self._preprocess(idx, out)
             records = np.frombuffer(out.read(), np.float32).reshape(-1, 16)
@@ -675,67 +449,6 @@ class SplatRenderer:
             self._targets.release()
             self._targets = None
 
-
-def _boxes_for(order: SortResult, camera: Camera) -> np.ndarray:
-    """The screen boxes of `order` (`SortResult.boxes`) in the pixels of `camera`'s image when the order was sorted
-    for an image of another resolution (the app lowers it while the view moves): centres map through the two
-    cameras' intrinsics; a half-size h = sqrt(rr (s^2 + EPS2D)) + 1 px (`sorting._depth_key`, s the footprint's
-    std-dev in pixels) becomes at most k (h - 1) + 1 + sqrt(rr EPS2D (1 - k^2)) when s scales by k (the EPS2D blur
-    does not scale; rr <= 2 ln(1 / ALPHA_THRESHOLD)); areas and masses scale with kx ky. A std-dev cap leaves rr
-    alone; a screen-radius cap does not (it reshapes a splat whose major axis changes with kx / ky), so `render`
-    sorts such orders again instead. Same-size orders are returned as they are."""
-    key = order.key
-    if key is None or key.intrinsics[4:] == (camera.width, camera.height):
-        return order.boxes
-    fx, fy, cx, cy = key.intrinsics[:4]
-    kx, ky = camera.fx / fx, camera.fy / fy
-    rr_eps = 2.0 * math.log(1.0 / ALPHA_THRESHOLD) * EPS2D
-    b = order.boxes.copy()
-    b[:, 0] = (b[:, 0] - cx) * kx + camera.cx
-    b[:, 1] = (b[:, 1] - cy) * ky + camera.cy
-    b[:, 2] = (b[:, 2] - 1.0) * kx + 1.0 + math.sqrt(rr_eps * max(0.0, 1.0 - kx * kx))
-    b[:, 3] = (b[:, 3] - 1.0) * ky + 1.0 + math.sqrt(rr_eps * max(0.0, 1.0 - ky * ky))
-    b[:, 4:6] *= kx * ky
-    return b
-
-
-def _stages(count: int) -> list[tuple[int, int]]:
-    """[first, end) draw stages of a front-to-back order: the nearest 1/128, then each stage as long as all before
-    it (1/128, 1/64, ... 1/2, the rest); stages shorter than _MIN_STAGE are merged into the next."""
-    if count < _MIN_STAGED:
-        return [(0, count)]
-    ends = [count >> k for k in range(7, 0, -1)] + [count]
-    out, first = [], 0
-    for end in ends:
-        if end - first >= _MIN_STAGE or end == count:
-            out.append((first, end))
-            first = end
-    return out
-
-
-def _saturated_table(saturated: np.ndarray) -> np.ndarray:
-    """Summed-area table ``[ty + 1, tx + 1]`` of `saturated` tile flags given top row first.
-
-    The tiles are counted from the image's lower-left corner (GL's origin), so when the height is not a multiple of
-    _OCCLUSION_TILE the top row of tiles hangs over the image top by `pad` pixels; `_hidden` shifts boxes by that.
-    """
-    table = np.zeros((saturated.shape[0] + 1, saturated.shape[1] + 1), np.int32)
-    table[1:, 1:] = saturated.cumsum(0).cumsum(1)
-    return table
-
-
-def _hidden(boxes: np.ndarray, table: np.ndarray, height: int) -> np.ndarray:
-    """``[M]`` bool: the screen box (u, v, hx, hy, ...) of each Gaussian lies entirely in saturated tiles (`table`,
-    from `_saturated_table` for an image `height` pixels high)."""
-    th, tw = table.shape[0] - 1, table.shape[1] - 1
-    pad = th * _OCCLUSION_TILE - height  # tiles start at the bottom edge: shift y (top-down) by the overhang
-    u, v, hx, hy = boxes[:, 0], boxes[:, 1] + pad, boxes[:, 2], boxes[:, 3]
-    x0 = np.clip(np.floor((u - hx) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64)
-    x1 = np.clip(np.floor((u + hx) / _OCCLUSION_TILE), 0, tw - 1).astype(np.int64) + 1
-    y0 = np.clip(np.floor((v - hy) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64)
-    y1 = np.clip(np.floor((v + hy) / _OCCLUSION_TILE), 0, th - 1).astype(np.int64) + 1
-    count = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
-    return count == (x1 - x0) * (y1 - y0)
 
 
 def _set_uniforms(prog, **values) -> None:

@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                          screenshot_dir=args.screenshot_dir, vsync=not args.no_vsync, render_scale=args.render_scale,
                          adaptive_resolution=not args.no_adaptive_resolution,
                          frame_budget_ms=AppOptions.frame_budget_ms if args.frame_budget is None else args.frame_budget,
-                         lower_while_playing=not args.sharp_playback, exit_after=args.exit_after,
+                         sharp_playback=args.sharp_playback, exit_after=args.exit_after,
                          screenshot=args.screenshot, report=args.report, force=args.force, crop=args.crop,
                          inspect=args.inspect, select=args.select)
     # fail with a one-line error before opening a window

@@ -92,10 +92,10 @@ def anchor(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
 def parser_reference(parser: argparse.ArgumentParser, level: int = 3) -> str:
     """Markdown for one parser and its subcommands: usage, description, one table per argument group."""
     # a fixed width, so that the page does not depend on the terminal that builds it
-    formatter = parser.formatter_class(prog=parser.prog, width=USAGE_WIDTH)
-    formatter.add_usage(parser.usage, parser._actions, parser._mutually_exclusive_groups)
-    out = ["```text", formatter.format_help().strip(), "```", ""]
-    formatter = parser.formatter_class(prog=parser.prog, width=USAGE_WIDTH)
+    usage = parser.formatter_class(prog=parser.prog, width=USAGE_WIDTH)
+    usage.add_usage(parser.usage, parser._actions, parser._mutually_exclusive_groups)
+    out = ["```text", usage.format_help().strip(), "```", ""]
+    formatter = parser.formatter_class(prog=parser.prog, width=USAGE_WIDTH)  # for the table cells
     if parser.description:
         out += ["```text", parser.description.strip("\n"), "```", ""]
     for title, actions in documented_actions(parser):

@@ -110,3 +110,30 @@ def test_readme_relative_links_resolve():
 def test_readme_picture_is_small():
     for image in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", README.read_text()):
         assert (ROOT / image).stat().st_size < 200_000, f"{image} is over 200 KB"
+
+
+def test_reference_generator_walks_nested_parsers_and_escapes_help():
+    """docs/hooks.py on a toy parser: groups, nested subcommands, choices behind a metavar, Markdown in help."""
+    import importlib.util
+
+    import markdown
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    root = argparse.ArgumentParser(prog="tool")
+    sub = root.add_subparsers(dest="command")
+    cmd = sub.add_parser("make", description="Makes things.")
+    cmd.add_argument("--level", choices=["a", "b"], metavar="L", default="a", help="a|b, *not* [x]")
+    group = cmd.add_argument_group("look")
+    group.add_argument("--size", type=int, default=3, help="size in `px|pt` (default %(default)s)")
+    inner = cmd.add_subparsers(dest="kind").add_parser("deep")
+    inner.add_argument("--depth", help="how deep")
+    page = markdown.markdown(hooks.render_markers("<!-- options: make -->", root), extensions=["tables"])
+    assert "<code>--level L</code>" in page and "<code>a</code>, <code>b</code>" in page
+    assert "<em>" not in page and "a|b, *not* [x]" in html.unescape(page)  # escaped: no emphasis, no link
+    assert "<code>px|pt</code>" in page and "default 3" in page and "<h3>Look</h3>" in page
+    assert "<code>tool make deep</code>" in page and "<code>--depth DEPTH</code>" in page
+    assert 'id="opt-make-deep-depth"' in page
+    with pytest.raises(Exception, match="no subcommand 'nope'"):
+        hooks.render_markers("<!-- options: make nope -->", root)

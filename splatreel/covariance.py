@@ -26,10 +26,9 @@ import torch
 from torch import Tensor
 
 from . import quaternion
-from .constants import TEMPORAL_CULL
+from .constants import ROTATION_CONVENTIONS, TEMPORAL_CULL, TEMPORAL_FADES  # noqa: F401 (re-exported)
 
 RotationConvention = Literal["current", "legacy"]
-ROTATION_CONVENTIONS: tuple[str, ...] = ("current", "legacy")
 #: Other names found in the wild for the same conventions.
 _CONVENTION_ALIASES = {"current": "current", "flipped": "current", "main": "current", "legacy": "legacy"}
 
@@ -152,12 +151,6 @@ def temporal_marginal(t: float | Tensor, t_means: Tensor, var_t: Tensor) -> Tens
     """``[N]`` unnormalised temporal marginal exp(-(t - mu_t)^2 / (2 var_t)); multiplies opacity."""
     dt = t - t_means
     return torch.exp(-0.5 * dt * dt / var_t)
-
-
-#: Temporal fades (`temporal_factor`): "cut" (the reference: the marginal as it is, the Gaussian dropped once it
-#: is <= TEMPORAL_CULL, so its opacity jumps from 0.05 of its peak to 0) and "smooth" (the same factor faded to 0
-#: over the marginal's last doubling before the cull, so nothing pops).
-TEMPORAL_FADES: tuple[str, ...] = ("cut", "smooth")
 
 
 def check_fade(fade: str) -> None:

@@ -106,7 +106,7 @@ def add_footprint_args(parser: argparse.ArgumentParser) -> None:
     """Which splats reach the screen and how far (`splatreel.viewer.sorting.Footprint`): the near plane and the
     performance guards, the trainer's by default (other values change the image)."""
     from splatreel.constants import NEAR_PLANE
-    from splatreel.covariance import TEMPORAL_FADES
+    from splatreel.constants import TEMPORAL_FADES
 
     parser.add_argument("--near-plane", type=argtype(parse_positive), default=NEAR_PLANE, metavar="D",
                         help=f"Gaussians closer to the camera than this depth are not drawn (default {NEAR_PLANE:g}, "

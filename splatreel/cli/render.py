@@ -28,7 +28,7 @@ examples:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splatreel.viewer.options import add_footprint_args, argtype, parse_size, parse_vector
+    from splatreel.viewer.options import add_look_args, argtype, parse_size, parse_vector
     from splatreel.viewer.panorama import PROJECTIONS
 
     from ._crop import add_crop_arg
@@ -87,21 +87,13 @@ def add_args(p: argparse.ArgumentParser) -> None:
     t.add_argument("--loop-seconds", type=float, default=2.0,
                    help="video seconds per pass through the time range in loop mode (default 2)")
     s = p.add_argument_group("look")
-    s.add_argument("--background", default=None,
-                   help="white, black, grey, transparent, #rrggbb or r,g,b (default: the checkpoint's)")
-    s.add_argument("--mode", default="color",
-                   help="color, depth, alpha, outlines, centers, speed, lifespan or fade (default color)")
+    add_look_args(s)
     s.add_argument("--map-range", type=argtype(lambda s: parse_vector(s, 2, "--map-range")), default=None,
                    metavar="LO,HI", help="ends of the colour map of --mode depth (near,far camera depth), speed "
                                          "(slow,fast in world units per unit of model time), lifespan "
                                          "(brief,long in model time) or fade; default: the depths seen over the "
                                          "video, 0 to the model's 98th-percentile speed, 0 to the model's time "
                                          "span, 0 to 1")
-    s.add_argument("--sh-degree", type=int, default=None, help="render at a lower SH degree")
-    s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
-    add_footprint_args(s)
-    s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
-                   help="blending order (same image; front-to-back stops saturated pixels early)")
     add_crop_arg(s, "; orbits frame what is left")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -127,9 +119,8 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.samples.trained import trained_checkpoint
     from splatreel.viewer.camera_path import nerfstudio_camera_path
     from splatreel.viewer.headless import render_to_file
-    from splatreel.viewer.options import OptionError, parse_background
+    from splatreel.viewer.options import OptionError, look_settings
     from splatreel.viewer.render_job import check_request, load_camera_path, plan_render
-    from splatreel.viewer.renderer import RenderSettings
 
     from ._crop import apply_crop
 
@@ -141,14 +132,9 @@ def run(args: argparse.Namespace) -> int:
         if Path(args.save_cameras).resolve() == Path(args.out).resolve():
             raise OptionError(f"--save-cameras {args.save_cameras} is the --out file; give the cameras a file of "
                               "their own")
-    bg, transparent = parse_background(args.background)
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
     model = apply_crop(ckpt.model, args.crop)
-    settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
-                              background=bg if bg is not None else ckpt.background, transparent=transparent,
-                              composite=args.composite, value_range=args.map_range,
-                              max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius,
-                              near_plane=args.near_plane, temporal_fade=args.temporal_fade)
+    settings = look_settings(args, ckpt.background, value_range=args.map_range)
     job = plan_render(request, model, load_camera_path(request, model.time_range), settings)
 
     summary = render_to_file(model, args.out, job.cameras, job.times, job.settings, job.fps, args.image_format,

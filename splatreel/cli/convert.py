@@ -31,7 +31,7 @@ examples:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from ..importers import add_import_args
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg
 
     p.add_argument("input", metavar="INPUT", help="file, folder or quoted glob to convert")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from ..formats import load_model
     from ..importers import import_options
     from ..model import CropBox
-    from ._crop import apply_crop
+    from ._shared_options import apply_crop
 
     out = Path(args.out)
     if out.suffix != SUFFIX:

@@ -19,7 +19,7 @@ DEFAULT_FRAMES = 48
 
 
 def _add_common(q: argparse.ArgumentParser, output: str) -> None:
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg
 
     q.add_argument("checkpoint", metavar="CKPT", help="model file (splatreel checkpoint or any imported format)")
     q.add_argument("out", metavar=output, help="output file or folder")
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from ..export import ExportError, exporters, frame_times
     from ..fileio import check_writable
     from ..formats import load_model
-    from ._crop import apply_crop
+    from ._shared_options import apply_crop
 
     check_writable(args.out, args.force)  # refuse before loading anything
     if not (args.fps > 0 and args.meters_per_unit > 0):

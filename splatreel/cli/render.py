@@ -31,7 +31,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.viewer.options import add_look_args, argtype, parse_size, parse_vector
     from splatreel.viewer.panorama import PROJECTIONS
 
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.viewer.options import OptionError, look_settings
     from splatreel.viewer.render_job import check_request, load_camera_path, plan_render
 
-    from ._crop import apply_crop
+    from ._shared_options import apply_crop
 
     request = check_request(request_of(args))
     if args.map_range is not None and not args.map_range[0] < args.map_range[1]:

@@ -32,7 +32,7 @@ examples:
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.viewer.options import add_look_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
 
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.viewer.controls import RESOLUTION_STEPS
     from splatreel.viewer.options import OptionError, look_settings, parse_background
 
-    from ._crop import check_crop
+    from ._shared_options import check_crop
 
     bg, transparent = parse_background(args.background)
     if transparent:

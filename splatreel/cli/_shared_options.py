@@ -1,4 +1,4 @@
-"""The ``--crop X0 Y0 Z0 X1 Y1 Z1`` option of the commands that read a model (convert, render, view)."""
+"""Options that several subcommands take, defined once: ``--crop X0 Y0 Z0 X1 Y1 Z1`` (convert, export, render, view)."""
 
 from __future__ import annotations
 

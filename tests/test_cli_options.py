@@ -46,3 +46,39 @@ def test_look_settings_from_the_options():
 def test_view_refuses_a_transparent_background(capsys):
     assert main(["view", "--background", "transparent"]) == 1
     assert "cannot show a transparent background" in capsys.readouterr().err
+
+
+def every_parser(parser: argparse.ArgumentParser, words: tuple[str, ...] = ()):
+    """(command words, parser) of every subcommand, nested ones (``export usd``) included."""
+    yield words, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from every_parser(sub, (*words, name))
+
+
+def test_one_option_one_spelling():
+    """--up is lowercase everywhere, outputs are --out, and --frames means no command's frame count."""
+    from splatreel.cameras import UP_AXES
+
+    ups, outs = {}, []
+    for words, parser in every_parser(build_parser()):
+        flags = {flag: action for action in parser._actions for flag in action.option_strings}
+        assert "--up-axis" not in flags, words
+        if "--up" in flags:
+            ups[" ".join(words)] = flags["--up"].choices
+        if "--out" in flags:
+            outs.append(words[0])
+            assert "-o" in flags and flags["-o"] is flags["--out"], words
+        # the one --frames left is the import option's other name (--bake-frames), not a count of output frames
+        assert "--frames" not in flags or flags["--frames"] is flags.get("--bake-frames"), words
+        assert not any(a.metavar in ("OUT", "OUT.usd", "OUTDIR") for a in parser._actions if not a.option_strings)
+    assert set(ups) == {"view", "render", "export usd", "export mesh", "export ply"}
+    assert all(set(choices) <= set(UP_AXES) for choices in ups.values())
+    assert set(outs) >= {"convert", "sample", "train", "eval", "render", "export"}
+
+
+def test_export_takes_the_up_axis_usd_can_declare(capsys):
+    with pytest.raises(SystemExit):
+        main(["export", "usd", "model.safetensors", "--out", "a.usd", "--up", "x"])
+    assert "invalid choice: 'x'" in capsys.readouterr().err

@@ -106,7 +106,7 @@ def check_request(request: RenderRequest) -> RenderRequest:
     if request.fps is not None and not request.fps > 0:
         raise OptionError(f"--fps must be positive, got {request.fps}")
     if request.frame_count is not None and request.frame_count < 1:
-        raise OptionError(f"--frames must be at least 1, got {request.frame_count}")
+        raise OptionError(f"--frame-count must be at least 1, got {request.frame_count}")
     if request.path_file and request.cameras:
         raise OptionError("give either --path or --cameras, not both")
     if not 0 < request.fov < 180:

@@ -16,10 +16,10 @@ examples:
   splatreel render --out sample.mp4                  (the bundled trained sample)
   splatreel render model.safetensors --out orbit.mp4
   splatreel render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
-  splatreel render model.safetensors --out frames --image-format exr --background transparent --frames 48
+  splatreel render model.safetensors --out frames --image-format exr --background transparent --frame-count 48
   splatreel render model.safetensors --out comp.mov --background transparent     (ProRes 4444 for editors)
   splatreel render model.safetensors --out core.mp4 --crop -0.5 -0.5 -0.5 0.5 0.5 0.5   (only what is in the box)
-  splatreel render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
+  splatreel render model.safetensors --out still.png --frame-count 1 --time 0.5 --azimuth 45
   splatreel render model.safetensors --out tour.mp4 --path tour.json
   splatreel render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
   splatreel render model.safetensors --out orbit.mp4 --save-cameras orbit_cameras.json   (the same cameras elsewhere)
@@ -31,7 +31,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.viewer.options import add_look_args, argtype, parse_size, parse_vector
     from splatreel.viewer.panorama import PROJECTIONS
 
-    from ._shared_options import add_crop_arg
+    from ._shared_options import add_crop_arg, add_up_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
@@ -47,7 +47,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "--projection equirect; even for .mp4 and .webm)")
     g.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the camera path file's, else 30)")
-    g.add_argument("--frames", type=int, default=None,
+    g.add_argument("--frame-count", type=int, default=None, metavar="N",
                    help="number of frames (default: 1 for a .png/.exr image, else --seconds x --fps, or the whole "
                         "camera path)")
     g.add_argument("--seconds", type=float, default=4.0, help="video length for orbit/spiral (default 4)")
@@ -77,7 +77,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="equirect: 360° panoramas (2:1) seen from each camera's position, its view direction at "
                         "the centre, .mp4/.mov tagged as 360° video; --fov does not apply (default perspective, or "
                         "what the path file says)")
-    c.add_argument("--up", default="z", choices=("x", "y", "z", "-x", "-y", "-z"), help="world up axis (default z)")
+    add_up_arg(c)
     t = p.add_argument_group("scene time")
     t.add_argument("--time-mode", choices=("loop", "timelapse", "hold", "path"), default=None,
                    help="loop: the animation repeats every --loop-seconds; timelapse: one pass over the whole "
@@ -104,7 +104,7 @@ def request_of(args: argparse.Namespace):
 
     return RenderRequest(
         out=args.out, trajectory=args.trajectory, path_file=args.path, cameras=args.cameras, split=args.split,
-        seconds_per_key=args.seconds_per_key, size=args.size, fps=args.fps, frame_count=args.frames,
+        seconds_per_key=args.seconds_per_key, size=args.size, fps=args.fps, frame_count=args.frame_count,
         seconds=args.seconds, elevation=args.elevation, azimuth=args.azimuth, amplitude=args.amplitude,
         turns=args.turns, distance=args.distance, target=args.target, fov=args.fov, projection=args.projection,
         up=args.up, time_mode=args.time_mode, time=args.time, loop_seconds=args.loop_seconds)

@@ -32,13 +32,13 @@ examples:
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.viewer.options import add_look_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
 
-    from ._shared_options import add_crop_arg
+    from ._shared_options import add_crop_arg, add_up_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
                    help="window size (default 1280x720)")
-    p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
+    add_up_arg(p, ("y", "z"), help="world up axis for orbiting")
     p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
     add_look_args(p, transparent=False)
     p.add_argument("--paused", action="store_true", help="start with playback paused")

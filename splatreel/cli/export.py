@@ -10,7 +10,8 @@ HELP = "export a model to OpenUSD (splats, instancer, points), per-frame meshes 
 DESCRIPTION = HELP + """.
 
 Frames: frame i of N (--frame-count) is at model time t0 + i (t1 - t0) / (N - 1), where [t0, t1] is the model's
-time range or --start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets timeCodesPerSecond.
+time range or --start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets
+timeCodesPerSecond.
 Gaussians keep their model order at every frame; those invisible at a frame get opacity 0.
 Run `splatreel export FORMAT --help` for a format's options."""
 

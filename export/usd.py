@@ -177,7 +177,7 @@ def _display_material(stage):
                             ("displayOpacity", "float", Sdf.ValueTypeNames.Float)):
         reader = UsdShade.Shader.Define(stage, f"{MATERIAL_PATH}/{name}")
         reader.CreateIdAttr(f"UsdPrimvarReader_{kind}")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set(name)
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set(name)  # string, not token (UsdPreviewSurface spec, UsdPrimvarReader)
         out = reader.CreateOutput("result", typ)
         target = "diffuseColor" if name == "displayColor" else "opacity"
         surface.CreateInput(target, Sdf.ValueTypeNames.Color3f if target == "diffuseColor" else typ

@@ -262,6 +262,24 @@ def test_usd_what_selects_prims_and_usdz_and_usda_open(ball, tmp_path):
         write_usd(ball, tmp_path / "x.abc", TIMES[:2])
 
 
+def usd_validation_errors(path) -> list[str]:
+    """Every error (not warning) that OpenUSD's own validators (UsdValidation, all registered) report on a stage."""
+    from pxr import Usd, UsdValidation
+
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    errors = UsdValidation.ValidationContext(validators).Validate(Usd.Stage.Open(str(path)))
+    return [f"{e.GetName()}: {e.GetMessage()}" for e in errors
+            if e.GetType() == UsdValidation.ValidationErrorType.Error]
+
+
+def test_every_usd_kind_validates_with_zero_errors(ball, usd_file, mesh_dir, tmp_path):
+    assert usd_validation_errors(usd_file) == []  # splats + instancer + points, with the display material
+    for what in ("splats", "instancer", "points"):
+        assert usd_validation_errors(write_usd(ball, tmp_path / f"{what}.usda", TIMES[:2],
+                                               UsdOptions(what=(what,), up_axis="Z"))) == [], what
+    assert usd_validation_errors(next(p for p in mesh_dir if p.name == "mesh_sequence.usd")) == []
+
+
 def test_usd_of_a_keyframed_model_uses_its_stored_rotations(tmp_path):
     from pxr import Usd
 

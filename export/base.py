@@ -22,8 +22,10 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
+
 import torch
 
+from splatreel.colorspace import srgb_to_linear  # noqa: F401  (re-exported for the exporters)
 from splatreel.constants import RADIUS_SIGMAS
 from splatreel.covariance import decompose_covariance_3d
 from splatreel.errors import ModelError, SplatreelError
@@ -198,14 +200,6 @@ def box_of(centres: np.ndarray, half: np.ndarray, mask: np.ndarray | None = None
     if centres.shape[0] == 0:
         return np.zeros((2, 3), np.float32)
     return np.stack([(centres - half).min(0), (centres + half).max(0)]).astype(np.float32)
-
-
-# --- colour --------------------------------------------------------------------------------------------------
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding of values in [0, 1] (same shape)."""
-    c = np.clip(c, 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
 
 
 def resolve_up_axis(explicit: str | None, provenance: dict | None) -> str:

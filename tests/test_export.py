@@ -422,7 +422,7 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
     """End to end on a real trained model (samples/spinner.safetensors, 50k Gaussians): the USD splats are its
     slices, and its meshes have the sample object's known box at each time."""
     import trimesh
-    from pxr import Usd, UsdVol
+    from pxr import Usd, UsdGeom, UsdVol
 
     from splatreel.checkpoint import load_checkpoint
     from splatreel.samples import object_bounds, trained_checkpoint
@@ -432,6 +432,7 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
     usd = tmp_path / "spinner.usdc"
     assert main(["export", "usd", str(ckpt), str(usd), "--frames", "3", "--what", "splats", "--quiet"]) == 0
     stage = Usd.Stage.Open(str(usd))  # keep the stage alive while its prims are read
+    assert UsdGeom.GetStageUpAxis(stage) == "Z"  # the sample is +Z up, and its checkpoint says so
     splats = UsdVol.ParticleField3DGaussianSplat(stage.GetPrimAtPath(PRIM_PATHS["splats"]))
     for tc, t in enumerate(frame_times(model.time_range, 3)):
         np.testing.assert_allclose(_np(splats.GetPositionsAttr().Get(tc)), model.slice(float(t)).means.numpy(),

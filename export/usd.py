@@ -64,6 +64,8 @@ ROOT = "/World"
 PRIM_PATHS = {"splats": f"{ROOT}/Splats", "instancer": f"{ROOT}/Instancer", "points": f"{ROOT}/Points"}
 PROTOTYPE_PATH = f"{PRIM_PATHS['instancer']}/Prototypes/UnitSphere"
 MATERIAL_PATH = f"{ROOT}/Looks/DisplayColor"
+#: a .usda (text) stage above this many bytes gets a warning suggesting .usdc
+LARGE_TEXT_STAGE = 64 * 2 ** 20
 
 
 @dataclass(frozen=True)
@@ -385,7 +387,13 @@ def write_usd(model, path: str | Path, times: Sequence[float], options: UsdOptio
     if path.suffix.lower() not in USD_SUFFIXES:
         raise ExportError(f"{path}: unknown USD suffix {path.suffix or '(none)'}; use one of "
                           f"{', '.join(USD_SUFFIXES)}")
-    return save_stage(build_usd_stage(model, times, options, progress), path, force)
+    written = save_stage(build_usd_stage(model, times, options, progress), path, force)
+    if path.suffix.lower() == ".usda" and written.stat().st_size > LARGE_TEXT_STAGE:
+        import warnings
+
+        warnings.warn(f"{path} holds {written.stat().st_size / 2 ** 20:.0f} MiB of text; the same stage as .usdc "
+                      "(binary crate) is over 10x smaller and opens faster", stacklevel=2)
+    return written
 
 
 def _add_args(p: argparse.ArgumentParser) -> None:

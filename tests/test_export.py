@@ -525,3 +525,16 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
     assert main(["export", "ply", str(ckpt), str(tmp_path / "none"), "--quiet", "--crop", "5", "5", "5", "6", "6",
                  "6"]) == 1
     assert "holds none" in capsys.readouterr().err
+
+
+def test_a_large_text_stage_suggests_usdc(ball, tmp_path, monkeypatch):
+    import splatreel.export.usd as usd_module
+
+    monkeypatch.setattr(usd_module, "LARGE_TEXT_STAGE", 1000)  # the ball's stage is a few kB
+    with pytest.warns(UserWarning, match=r"usda holds .* MiB of text; the same stage as \.usdc"):
+        write_usd(ball, tmp_path / "big.usda", TIMES[:2])
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_usd(ball, tmp_path / "big.usdc", TIMES[:2])  # binary: no warning

@@ -202,6 +202,23 @@ def box_of(centres: np.ndarray, half: np.ndarray, mask: np.ndarray | None = None
     return np.stack([(centres - half).min(0), (centres + half).max(0)]).astype(np.float32)
 
 
+#: Formats whose readers take +Y as up whatever a file says: glTF 2.0 (its spec: "+Y is up") and OBJ (no up axis
+#: of its own; Blender's and most DCC importers assume +Y)
+Y_UP_FORMATS = ("glb", "gltf", "obj")
+
+
+def to_y_up(vectors: np.ndarray, up_axis: str) -> np.ndarray:
+    """``[..., 3]`` points or directions of a model whose up axis is `up_axis` ("Y" or "Z") in +Y-up coordinates.
+
+    Z up: ``(x, y, z) -> (x, z, -y)``, a -90 degree turn about X (right-handed stays right-handed; the model's
+    front, -Y in a Z-up scene, becomes +Z), the conversion Blender's glTF exporter makes.
+    """
+    if str(up_axis).upper() == "Y":
+        return vectors
+    v = np.asarray(vectors)
+    return np.stack([v[..., 0], v[..., 2], -v[..., 1]], -1)
+
+
 def resolve_up_axis(explicit: str | None, provenance: dict | None) -> str:
     """The up axis to declare: `explicit` ("Y"/"Z") if given, else the checkpoint provenance's ``up_axis``, else Y."""
     up = str(explicit or (provenance or {}).get("up_axis", "Y")).upper()

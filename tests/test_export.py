@@ -478,6 +478,15 @@ def test_mesh_formats_round_trip_through_trimesh(ball, tmp_path, fmt):
     assert [p.name for p in paths] == [f"mesh_000000.{fmt}", "manifest.json"]
     m = trimesh.load(paths[0], force="mesh")
     assert m.volume > 0.2 and len(m.visual.vertex_colors) == len(m.vertices)
+    # a +Z-up model: the PLY keeps its axes, the GLB/OBJ are turned +Y up, (x, y, z) -> (x, z, -y)
+    z_up = write_mesh_sequence(ball, tmp_path / f"{fmt}-z", TIMES[:1],
+                               MeshOptions(format=fmt, resolution=24, usd=False, up_axis="Z"))
+    ply = write_mesh_sequence(ball, tmp_path / "ply-z", TIMES[:1], MeshOptions(resolution=24, usd=False, up_axis="Z"))
+    turned, native = trimesh.load(z_up[0], force="mesh", process=False), trimesh.load(ply[0], process=False)
+    want = np.stack([native.vertices[:, 0], native.vertices[:, 2], -native.vertices[:, 1]], 1)
+    np.testing.assert_allclose(turned.vertices, want, atol=1e-5)
+    assert json.loads(z_up[-1].read_text())["mesh_up_axis"] == "Y"
+    assert json.loads(ply[-1].read_text())["mesh_up_axis"] == "Z"
 
 
 def test_a_frame_below_the_iso_level_gives_an_empty_mesh_in_every_format(ball, tmp_path):

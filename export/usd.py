@@ -209,9 +209,17 @@ def _set_vertex_primvar(gprim, name: str, type_name, value, time) -> None:
     _author(pv.GetAttr(), value, time)
 
 
-def points_widths(frame: SplatFrame, sigmas: float) -> np.ndarray:
-    """``[N]`` widths of the points that stand for `frame`'s Gaussians: ``2 k`` mean std-devs, 0 when invisible."""
-    return np.where(frame.visible, 2.0 * sigmas * frame.scales.mean(1), 0.0)
+#: the splat prim's Points fallback: spheres out to 1 std-dev (the Gaussian's core), none for Gaussians fainter than
+#: FALLBACK_MIN_OPACITY (an opaque sphere would show a faint halo Gaussian as a solid blob)
+FALLBACK_SIGMAS = 1.0
+FALLBACK_MIN_OPACITY = 0.1
+
+
+def points_widths(frame: SplatFrame, sigmas: float, min_opacity: float = 0.0) -> np.ndarray:
+    """``[N]`` widths of the points that stand for `frame`'s Gaussians: ``2 k`` mean std-devs, 0 when invisible
+    (or fainter than `min_opacity`)."""
+    shown = frame.visible & (frame.opacities >= min_opacity)
+    return np.where(shown, 2.0 * sigmas * frame.scales.mean(1), 0.0)
 
 
 class _SplatsWriter:
@@ -226,7 +234,7 @@ class _SplatsWriter:
     def __init__(self, stage, sh_degree: int, sigmas: float, material):
         from pxr import UsdGeom, UsdVol
 
-        self.sigmas = sigmas
+        del sigmas  # the fallback's spheres are FALLBACK_SIGMAS wide, whatever the instancer's are
         self.prim = UsdVol.ParticleField3DGaussianSplat.Define(stage, PRIM_PATHS["splats"])
         self.fallback = UsdGeom.Points(self.prim.GetPrim())
         self.fallback_attrs = {"points": self.fallback.CreatePointsAttr(), "widths": self.fallback.CreateWidthsAttr(),
@@ -258,7 +266,7 @@ class _SplatsWriter:
         # the Points fallback (a crate file stores the positions array once for both attributes)
         fa = self.fallback_attrs
         _author(fa["points"], _vec3f(frame.means), tc)
-        _author(fa["widths"], _floats(points_widths(frame, self.sigmas)), tc)
+        _author(fa["widths"], _floats(points_widths(frame, FALLBACK_SIGMAS, FALLBACK_MIN_OPACITY)), tc)
         _author(fa["velocities"], _vec3f(frame.velocities * velocity_scale), tc)
         _set_vertex_primvar(self.prim, "displayOpacity", Sdf.ValueTypeNames.FloatArray, _floats(frame.opacities),
                             tc)

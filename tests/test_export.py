@@ -547,3 +547,17 @@ def test_a_large_text_stage_suggests_usdc(ball, tmp_path, monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         write_usd(ball, tmp_path / "big.usdc", TIMES[:2])  # binary: no warning
+
+
+def test_the_splat_prim_falls_back_to_points_only_where_the_schema_is_unknown(usd_file):
+    """usd-core knows the splat schema, so the prim stays splats here; the stage names Points as its fallback
+    (Blender's older OpenUSD reads it so: tests/test_blender.py) and the prim carries what Points reads."""
+    from pxr import Usd, UsdGeom, UsdVol
+
+    stage = Usd.Stage.Open(str(usd_file))
+    prim = stage.GetPrimAtPath(PRIM_PATHS["splats"])
+    assert prim.IsA(UsdVol.ParticleField3DGaussianSplat) and not prim.IsA(UsdGeom.Points)
+    assert dict(stage.GetMetadata("fallbackPrimTypes")) == {"ParticleField3DGaussianSplat": ["Points"]}
+    points = UsdGeom.Points(prim)
+    np.testing.assert_array_equal(_np(points.GetPointsAttr().Get(1)), _np(prim.GetAttribute("positions").Get(1)))
+    assert len(points.GetWidthsAttr().Get(1)) == len(points.GetPointsAttr().Get(1))

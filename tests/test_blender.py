@@ -137,3 +137,23 @@ def test_meshes_land_where_the_model_is_in_every_format(exports):
     last_truth = trimesh.load(out / "ply" / f"mesh_{FRAMES - 1:06d}.ply", process=False)
     np.testing.assert_allclose(last.max(0), last_truth.bounds[1], atol=1e-3)
     assert np.linalg.norm(last.mean(0) - first.mean(0)) > 0.1  # it moves
+
+
+def test_blender_renders_the_import_where_splatreel_renders_the_model(exports):
+    """scripts/blender_render.py (the docs picture): Blender's render of the default USD import, from the camera
+    `render --save-cameras` wrote, covers the same pixels as splatreel's render of the model (same place, same
+    size, nothing turned)."""
+    import cv2
+
+    _, times, out, _ = exports
+    ours, cameras, theirs = out / "ours.png", out / "cameras.json", out / "blender.png"
+    assert main(["render", str(trained_checkpoint("spinner")), "--out", str(ours), "--size", "240x180", "--time",
+                 str(float(times[1])), "--background", "white", "--save-cameras", str(cameras), "--quiet"]) == 0
+    proc = subprocess.run([str(_blender_python()), str(ROOT / "scripts" / "blender_render.py"),
+                           str(out / "default.usdc"), str(cameras), str(theirs), "1"],
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": ""})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    masks = [cv2.imread(str(p)).min(-1) < 200 for p in (ours, theirs)]  # not white: the object
+    iou = (masks[0] & masks[1]).sum() / (masks[0] | masks[1]).sum()
+    centres = [np.argwhere(m).mean(0) for m in masks]
+    assert iou > 0.5 and np.linalg.norm(centres[0] - centres[1]) < 6, (iou, centres)

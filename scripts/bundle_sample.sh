@@ -11,9 +11,9 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 TMP="$(mktemp -d)"
 trap 'rm -rf "$TMP"' EXIT
 cd "$TMP"
-splatreel sample spinner spinner
+splatreel sample spinner --out spinner
 splatreel train spinner --out spinner.safetensors --seed 0 --iters 500 --max-gaussians 100000
-splatreel eval spinner.safetensors spinner --json eval.json
+splatreel eval spinner.safetensors spinner --out eval.json
 python - <<'PY'
 import json, sys
 psnr = json.load(open("eval.json"))["psnr"]

@@ -6,10 +6,10 @@ source "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
 OUT="${OUT:-out/demo}"
 mkdir -p "$OUT"
 echo "== generating the 'spinner' sample (16 views x 16 frames, D-NeRF layout) in $OUT/spinner"
-splatreel sample spinner "$OUT/spinner" --force
+splatreel sample spinner --out "$OUT/spinner" --force
 echo "== training (the auto recipe, 4 minutes)"
 splatreel train "$OUT/spinner" --out "$OUT/spinner.safetensors" --force
 echo "== evaluation on the test views (other azimuths, elevations and times)"
-splatreel eval "$OUT/spinner.safetensors" "$OUT/spinner" --json "$OUT/eval.json" --force
+splatreel eval "$OUT/spinner.safetensors" "$OUT/spinner" --out "$OUT/eval.json" --force
 splatreel info "$OUT/spinner.safetensors"
 echo "== done: view it with  .venv/bin/splatreel view $OUT/spinner.safetensors   (.venv/bin/splatreel view alone opens the bundled one)"

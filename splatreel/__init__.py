@@ -2,15 +2,36 @@
 
 Core types live here and are shared by the trainer, the viewer and the exporters:
 `Gaussians4D` / `KeyframedGaussians` (with ``slice(t) -> Gaussians3D``), `Camera`, and checkpoint I/O.
+
+Names are imported on first use (PEP 562 module ``__getattr__``, https://peps.python.org/pep-0562/), so that
+``splatreel --help``, ``--version`` and ``info`` start without importing torch.
 """
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
-from .cameras import Camera, look_at, orbit  # noqa: E402
-from .checkpoint import Checkpoint, load_checkpoint, save_checkpoint  # noqa: E402
-from .errors import CheckpointError, SplatreelError  # noqa: E402
-from .formats import load_model  # noqa: E402
-from .model import Gaussians3D, Gaussians4D, KeyframedGaussians, Model  # noqa: E402
+_EXPORTS = {
+    "cameras": ("Camera", "look_at", "orbit"),
+    "checkpoint": ("Checkpoint", "load_checkpoint", "save_checkpoint"),
+    "errors": ("CheckpointError", "SplatreelError"),
+    "formats": ("load_model",),
+    "model": ("Gaussians3D", "Gaussians4D", "KeyframedGaussians", "Model"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
-__all__ = ["Camera", "Checkpoint", "CheckpointError", "Gaussians3D", "Gaussians4D", "KeyframedGaussians", "Model",
-           "SplatreelError", "load_checkpoint", "load_model", "look_at", "orbit", "save_checkpoint", "__version__"]
+__all__ = sorted([*_WHERE, "__version__"])
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_WHERE})

@@ -32,6 +32,16 @@ TILE_SIZE: int = 16
 #: A 4D Gaussian is culled at time t unless its temporal marginal exp(-(t-mu_t)^2 / (2 Sigma_tt)) exceeds this.
 TEMPORAL_CULL: float = 0.05
 
+# Names of choices. They live here rather than beside the torch code that uses them so that option parsers
+# (the CLI's --help, the import options) read them without importing torch.
+
+#: 4D rotation conventions of `splatreel.covariance.rotation_4d`.
+ROTATION_CONVENTIONS: tuple[str, ...] = ("current", "legacy")
+#: Temporal fades (`splatreel.covariance.temporal_factor`): "cut" (the reference: the marginal as it is, the
+#: Gaussian dropped once it is <= TEMPORAL_CULL, so its opacity jumps from 0.05 of its peak to 0) and "smooth" (the
+#: same factor faded to 0 over the marginal's last doubling before the cull, so nothing pops).
+TEMPORAL_FADES: tuple[str, ...] = ("cut", "smooth")
+
 #: Name -> value of every constant that the GLSL shaders receive as a `#define`.
 GLSL_DEFINES: dict[str, float] = {
     "ALPHA_THRESHOLD": ALPHA_THRESHOLD,

@@ -26,12 +26,11 @@ import torch
 from torch import Tensor
 
 from . import quaternion
-from .constants import TEMPORAL_CULL
+from .constants import ROTATION_CONVENTIONS, TEMPORAL_CULL, TEMPORAL_FADES  # noqa: F401 (re-exported)
+from .covariance_numpy import _ISOCLINIC_INDEX, _LEFT_SIGN, _RIGHT_CONJ_SIGN
+from .covariance_numpy import CONVENTION_ALIASES as _CONVENTION_ALIASES
 
 RotationConvention = Literal["current", "legacy"]
-ROTATION_CONVENTIONS: tuple[str, ...] = ("current", "legacy")
-#: Other names found in the wild for the same conventions.
-_CONVENTION_ALIASES = {"current": "current", "flipped": "current", "main": "current", "legacy": "legacy"}
 
 
 def parse_convention(name: str) -> RotationConvention:
@@ -59,12 +58,9 @@ def decompose_covariance_3d(cov: Tensor) -> tuple[Tensor, Tensor]:
     return evals.clamp_min(0).sqrt(), quaternion.from_rotmat(evecs)
 
 
-# L(q) and Rbar(q) as (component index, sign) per matrix entry, row-major: one gather and one multiply build them
-# (15x fewer tensor ops than stacking 16 components, ~1.6x faster at 1M Gaussians, the same gradients). Both
-# matrices pick the same components; only the signs differ.
-_ISOCLINIC_INDEX = (0, 1, 2, 3, 1, 0, 3, 2, 2, 3, 0, 1, 3, 2, 1, 0)
-_LEFT_SIGN = (1, -1, -1, -1, 1, 1, -1, 1, 1, 1, 1, -1, 1, -1, 1, 1)
-_RIGHT_CONJ_SIGN = (1, 1, 1, 1, -1, 1, -1, 1, -1, 1, 1, -1, -1, -1, 1, 1)
+# L(q) and Rbar(q) are built from the (component index, sign) tables of `covariance_numpy` (defined there, once, for
+# its numpy twins too): one gather and one multiply build them (15x fewer tensor ops than stacking 16 components,
+# ~1.6x faster at 1M Gaussians, the same gradients). Both matrices pick the same components; only the signs differ.
 
 
 @functools.lru_cache(maxsize=32)
@@ -152,12 +148,6 @@ def temporal_marginal(t: float | Tensor, t_means: Tensor, var_t: Tensor) -> Tens
     """``[N]`` unnormalised temporal marginal exp(-(t - mu_t)^2 / (2 var_t)); multiplies opacity."""
     dt = t - t_means
     return torch.exp(-0.5 * dt * dt / var_t)
-
-
-#: Temporal fades (`temporal_factor`): "cut" (the reference: the marginal as it is, the Gaussian dropped once it
-#: is <= TEMPORAL_CULL, so its opacity jumps from 0.05 of its peak to 0) and "smooth" (the same factor faded to 0
-#: over the marginal's last doubling before the cull, so nothing pops).
-TEMPORAL_FADES: tuple[str, ...] = ("cut", "smooth")
 
 
 def check_fade(fade: str) -> None:

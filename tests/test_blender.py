@@ -50,13 +50,13 @@ def exports(tmp_path_factory):
     out = tmp_path_factory.mktemp("blender")
     ckpt = str(trained_checkpoint("spinner"))
     files = {"default": out / "default.usdc"}
-    assert main(["export", "usd", ckpt, str(files["default"]), "--frames", str(FRAMES), "--quiet"]) == 0
+    assert main(["export", "usd", ckpt, "--out", str(files["default"]), "--frame-count", str(FRAMES), "--quiet"]) == 0
     for what in ("splats", "instancer", "points"):
         files[what] = out / f"{what}.usdc"
-        assert main(["export", "usd", ckpt, str(files[what]), "--frames", str(FRAMES), "--what", what,
+        assert main(["export", "usd", ckpt, "--out", str(files[what]), "--frame-count", str(FRAMES), "--what", what,
                      "--quiet"]) == 0
     for fmt in ("glb", "obj", "ply"):
-        assert main(["export", "mesh", ckpt, str(out / fmt), "--frames", str(FRAMES), "--format", fmt,
+        assert main(["export", "mesh", ckpt, "--out", str(out / fmt), "--frame-count", str(FRAMES), "--format", fmt,
                      "--resolution", "40", "--quiet"] + ([] if fmt == "ply" else ["--no-usd"])) == 0
         files[fmt] = out / fmt / f"mesh_000000.{fmt}"
     files["mesh_sequence"] = out / "ply" / "mesh_sequence.usd"

@@ -430,7 +430,8 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
     ckpt = trained_checkpoint("spinner")
     model = load_checkpoint(ckpt).model
     usd = tmp_path / "spinner.usdc"
-    assert main(["export", "usd", str(ckpt), str(usd), "--frames", "3", "--what", "splats", "--quiet"]) == 0
+    assert main(["export", "usd", str(ckpt), "--out", str(usd), "--frame-count", "3", "--what", "splats",
+                 "--quiet"]) == 0
     stage = Usd.Stage.Open(str(usd))  # keep the stage alive while its prims are read
     assert UsdGeom.GetStageUpAxis(stage) == "Z"  # the sample is +Z up, and its checkpoint says so
     splats = UsdVol.ParticleField3DGaussianSplat(stage.GetPrimAtPath(PRIM_PATHS["splats"]))
@@ -438,8 +439,8 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
         np.testing.assert_allclose(_np(splats.GetPositionsAttr().Get(tc)), model.slice(float(t)).means.numpy(),
                                    atol=1e-5)
     out = tmp_path / "meshes"
-    assert main(["export", "mesh", str(ckpt), str(out), "--frames", "3", "--resolution", "48", "--format", "ply",
-                 "--no-usd", "--quiet"]) == 0
+    assert main(["export", "mesh", str(ckpt), "--out", str(out), "--frame-count", "3", "--resolution", "48",
+                 "--format", "ply", "--no-usd", "--quiet"]) == 0
     meshes = sorted(out.glob("*.ply"))
     assert len(meshes) == 3
     for path, t in zip(meshes, frame_times(model.time_range, 3)):
@@ -505,22 +506,22 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
     assert list(exporters()) == ["usd", "mesh", "ply"]
     ckpt = save_checkpoint(tmp_path / "ball.safetensors", ball)
     out = tmp_path / "a.usda"
-    assert main(["export", "usd", str(ckpt), str(out), "--frames", "3", "--fps", "30", "--what", "splats",
+    assert main(["export", "usd", str(ckpt), "--out", str(out), "--frame-count", "3", "--fps", "30", "--what", "splats",
                  "--quiet"]) == 0
     assert "timeCodesPerSecond = 30" in out.read_text()
     assert "wrote" in capsys.readouterr().out
     cases = [
-        (["usd", str(ckpt), str(out), "--frames", "3"], "already exists"),
-        (["usd", str(ckpt), str(tmp_path / "b.usd"), "--end", "2"], "outside the model's time range"),
-        (["usd", str(ckpt), str(tmp_path / "b.usd"), "--what", "splats,voxels"], "unknown prim kind"),
-        (["ply", str(tmp_path / "missing.safetensors"), str(tmp_path / "p")], "no such file"),
-        (["mesh", str(ckpt), str(tmp_path / "m"), "--resolution", "4"], "resolution"),
+        (["usd", str(ckpt), "--out", str(out), "--frame-count", "3"], "already exists"),
+        (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--end", "2"], "outside the model's time range"),
+        (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--what", "splats,voxels"], "unknown prim kind"),
+        (["ply", str(tmp_path / "missing.safetensors"), "--out", str(tmp_path / "p")], "no such file"),
+        (["mesh", str(ckpt), "--out", str(tmp_path / "m"), "--resolution", "4"], "resolution"),
     ]
     for argv, message in cases:
         assert main(["export", *argv, "--quiet"]) == 1
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
-    assert main(["export", "usd", str(ckpt), str(out), "--frames", "2", "--force", "--quiet"]) == 0
+    assert main(["export", "usd", str(ckpt), "--out", str(out), "--frame-count", "2", "--force", "--quiet"]) == 0
     assert re.search(r"endTimeCode = 1\b", out.read_text())
     # --crop exports only the Gaussians the box keeps (`splatreel.model.crop`); a box that misses is one line
     from splatreel.model import CropBox, crop
@@ -528,11 +529,11 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
     box = ["-0.2", "-1", "-1", "1", "1", "1"]
     kept = len(crop(ball, CropBox.of([float(x) for x in box])))
     assert 0 < kept < len(ball)
-    assert main(["export", "ply", str(ckpt), str(tmp_path / "cropped"), "--frames", "1", "--quiet", "--crop",
-                 *box]) == 0
+    assert main(["export", "ply", str(ckpt), "--out", str(tmp_path / "cropped"), "--frame-count", "1", "--quiet",
+                 "--crop", *box]) == 0
     assert len(read_ply((tmp_path / "cropped" / "frame_000000.ply").read_bytes())) == kept
-    assert main(["export", "ply", str(ckpt), str(tmp_path / "none"), "--quiet", "--crop", "5", "5", "5", "6", "6",
-                 "6"]) == 1
+    assert main(["export", "ply", str(ckpt), "--out", str(tmp_path / "none"), "--quiet", "--crop", "5", "5", "5",
+                 "6", "6", "6"]) == 1
     assert "holds none" in capsys.readouterr().err
 
 

@@ -272,7 +272,8 @@ def test_exact_model_matches_the_dataset(exact_model, dataset):
 
 def test_cli_writes_the_floor_model(tmp_path, capsys):
     path = tmp_path / "floor.safetensors"
-    assert main(["sample", "floor", "--model", str(path), "--frames", "24", "--size", "64", "--gaussians", "3000"]) == 0
+    assert main(["sample", "floor", "--model", str(path), "--time-steps", "24", "--size", "64",
+                 "--gaussians", "3000"]) == 0
     assert "3,000 Gaussians" in capsys.readouterr().out
     ck = load_checkpoint(path)
     assert len(ck.model) == 3000 and ck.background == (1.0, 1.0, 1.0)
@@ -283,7 +284,7 @@ def test_cli_writes_the_floor_model(tmp_path, capsys):
 
 def test_cli_writes_floor(tmp_path, capsys):
     out = tmp_path / "f"
-    assert main(["sample", "floor", str(out), "--frames", "24", "--size", "48"]) == 0
+    assert main(["sample", "floor", "--out", str(out), "--time-steps", "24", "--size", "48"]) == 0
     assert "24 training + 12 test images" in capsys.readouterr().out
     ds = load_dataset(out)
     assert len(ds.train) == 24 and len(ds.test) == 12 and ds.num_views == NUM_CAMERAS
@@ -293,7 +294,7 @@ def test_cli_writes_floor(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args,needle", [
-    (["--frames", "5"], "--frames must be 12..1000"),
+    (["--time-steps", "5"], "must be 12..1000"),
     (["--size", "2"], "--size"),
     (["--test-views", "-3"], "--test-views"),
     (["--views", "8"], "--views does not apply"),
@@ -302,7 +303,7 @@ def test_cli_writes_floor(tmp_path, capsys):
 ])
 def test_cli_floor_errors_are_one_line(tmp_path, capsys, monkeypatch, args, needle):
     monkeypatch.chdir(tmp_path)
-    assert main(["sample", "floor", "out", *args]) == 1
+    assert main(["sample", "floor", "--out", "out", *args]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and needle in err, err
     assert not any(tmp_path.iterdir()), "nothing is written on an error"

@@ -168,7 +168,7 @@ def test_build_model_and_cli(tmp_path, capsys):
     rgb = model.slice(0.5).colors(torch.zeros(3)).numpy()
     assert rgb.std(0).min() > 0.1  # the model carries the texture's contrast
     ckpt = tmp_path / "t.safetensors"
-    assert main(["sample", "texture", "--model", str(ckpt), "--gaussians", "2000", "--frames", "4"]) == 0
+    assert main(["sample", "texture", "--model", str(ckpt), "--gaussians", "2000", "--time-steps", "4"]) == 0
     assert len(load_checkpoint(ckpt).model) == 2000
     assert "texture" in capsys.readouterr().out
 

@@ -329,7 +329,7 @@ def test_cli_help_and_list(capsys):
         main(["sample", "--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for flag in ("--views", "--frames", "--size", "--elevation", "--radius", "--fov", "--test-views", "--force",
+    for flag in ("--views", "--time-steps", "--size", "--elevation", "--radius", "--fov", "--test-views", "--force",
                  "--model", "--list"):
         assert flag in out
     assert main(["sample", "--list"]) == 0
@@ -338,21 +338,21 @@ def test_cli_help_and_list(capsys):
 
 
 def test_cli_errors_are_one_line(capsys, tmp_path):
-    assert main(["sample", "teapot", str(tmp_path / "x")]) == 1
+    assert main(["sample", "teapot", "--out", str(tmp_path / "x")]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "spinner, wave, morph" in err
     (tmp_path / "taken").mkdir()
-    assert main(["sample", "wave", str(tmp_path / "taken"), "--size", "16"]) == 1
+    assert main(["sample", "wave", "--out", str(tmp_path / "taken"), "--size", "16"]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "already exists" in err and "--force" in err
-    assert main(["sample", "wave", str(tmp_path / "y"), "--views", "0"]) == 1
+    assert main(["sample", "wave", "--out", str(tmp_path / "y"), "--views", "0"]) == 1
     assert "--views" in capsys.readouterr().err
 
 
 def test_cli_writes_dataset_and_model(tmp_path, capsys):
     out, ckpt = tmp_path / "d", tmp_path / "m.safetensors"
-    args = ["sample", "morph", str(out), "--views", "2", "--frames", "2", "--size", "16", "--test-views", "1",
-            "--model", str(ckpt), "--gaussians", "500"]
+    args = ["sample", "morph", "--out", str(out), "--views", "2", "--time-steps", "2", "--size", "16",
+            "--test-views", "1", "--model", str(ckpt), "--gaussians", "500"]
     assert main(args) == 0
     assert len(load_split(out, "train")["frames"]) == 4 and len(load_split(out, "test")["frames"]) == 1
     loaded = load_checkpoint(ckpt)

@@ -146,11 +146,11 @@ def test_cli_train_refuse_stop_resume_and_eval(tiny, tmp_path, capsys):
     assert main(args + ["--resume"]) == 0
     assert load_checkpoint(out).training["iteration"] == 6
     js = tmp_path / "eval.json"
-    assert main(["eval", str(out), str(tiny), "--json", str(js)]) == 0
+    assert main(["eval", str(out), str(tiny), "--out", str(js)]) == 0
     res = json.loads(js.read_text())
     assert {"psnr", "ssim", "per_view", "seconds"} <= set(res) and len(res["per_view"]) == 4
     assert all(np.isfinite(v["psnr"]) for v in res["per_view"])
-    assert main(["eval", str(out), str(tiny), "--json", str(js)]) == 1  # no clobbering without --force
+    assert main(["eval", str(out), str(tiny), "--out", str(js)]) == 1  # no clobbering without --force
 
 
 def test_cli_train_says_which_background_and_resume_keeps_the_recorded_one(tiny, tmp_path, capsys):

@@ -36,7 +36,7 @@ def ckpt(model, tmp_path_factory) -> Path:
 
 def test_mp4_decodes_with_expected_frames_size_and_fps(ckpt, tmp_path, capsys):
     out = tmp_path / "orbit.mp4"
-    assert main(["render", str(ckpt), "--out", str(out), "--size", "96x64", "--fps", "12", "--frames", "7",
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "96x64", "--fps", "12", "--frame-count", "7",
                  "--trajectory", "spiral", "--quiet"]) == 0
     assert "wrote" in capsys.readouterr().out
     with av.open(str(out)) as container:
@@ -54,7 +54,7 @@ def test_mp4_decodes_with_expected_frames_size_and_fps(ckpt, tmp_path, capsys):
 
 def test_exr_keeps_alpha(ckpt, tmp_path):
     out = tmp_path / "still.exr"
-    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--frames", "1",
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--frame-count", "1",
                  "--background", "transparent", "--time", "0.5", "--quiet"]) == 0
     img = oiio.ImageInput.open(str(out))
     spec = img.spec()
@@ -80,7 +80,7 @@ def test_exr_keeps_alpha(ckpt, tmp_path):
 
 def test_png_sequence_with_alpha_and_no_overwrite(ckpt, tmp_path, capsys):
     out = tmp_path / "frames"
-    args = ["render", str(ckpt), "--out", str(out), "--size", "40x30", "--frames", "3", "--background",
+    args = ["render", str(ckpt), "--out", str(out), "--size", "40x30", "--frame-count", "3", "--background",
             "transparent", "--time-mode", "timelapse", "--quiet"]
     assert main(args) == 0
     files = sorted(out.iterdir())
@@ -115,7 +115,7 @@ def test_save_cameras_writes_a_nerfstudio_path_that_renders_the_same_frames(ckpt
     import json
 
     first, again, cams = tmp_path / "first", tmp_path / "again", tmp_path / "cams.json"
-    args = ["render", str(ckpt), "--size", "48x36", "--fps", "12", "--frames", "5", "--trajectory", "spiral",
+    args = ["render", str(ckpt), "--size", "48x36", "--fps", "12", "--frame-count", "5", "--trajectory", "spiral",
             "--time-mode", "timelapse", "--quiet"]
     assert main([*args, "--out", str(first), "--save-cameras", str(cams)]) == 0
     data = json.loads(cams.read_text())
@@ -180,7 +180,7 @@ def test_transparent_videos_keep_alpha(model, ckpt, tmp_path, suffix, colour_err
     expect): it matches the headless render's, and so does the colour wherever the object covers the pixel
     (VP9 less closely: 4:2:0 chroma over a 64x48 image of 4,000 small Gaussians)."""
     out = tmp_path / f"clip{suffix}"
-    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--fps", "10", "--frames", "3",
+    assert main(["render", str(ckpt), "--out", str(out), "--size", "64x48", "--fps", "10", "--frame-count", "3",
                  "--background", "transparent", "--time", "0.5", "--azimuth", "30", "--quiet"]) == 0
     frames, stream = decode_rgba(out)
     assert len(frames) == 3 and (stream.width, stream.height) == (64, 48) and stream.average_rate == 10
@@ -217,7 +217,7 @@ def test_transparent_videos_keep_alpha(model, ckpt, tmp_path, suffix, colour_err
 ])
 def test_bad_options_give_one_line_errors(ckpt, tmp_path, capsys, extra, message, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert main(["render", str(ckpt), "--frames", "1", "--quiet", *extra]) == 1
+    assert main(["render", str(ckpt), "--frame-count", "1", "--quiet", *extra]) == 1
     err = capsys.readouterr().err.strip()
     assert message in err and "\n" not in err and "Traceback" not in err
 
@@ -251,7 +251,7 @@ def test_a_still_image_is_one_frame(ckpt, tmp_path, capsys, monkeypatch):
     assert "1 frame(s)" in capsys.readouterr().out and (tmp_path / "still.png").is_file()
     calls = []
     monkeypatch.setattr(SplatRenderer, "render", lambda *a, **k: calls.append(1))
-    assert main(["render", str(ckpt), "--out", "frame_%04d.png", "--frames", "3", "--quiet"]) == 1
+    assert main(["render", str(ckpt), "--out", "frame_%04d.png", "--frame-count", "3", "--quiet"]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("splatreel render: error: frame_%04d.png holds one image, not 3 frames") and "\n" not in err
     assert not calls and not list(tmp_path.glob("*frame*"))  # refused before drawing anything

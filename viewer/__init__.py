@@ -5,6 +5,7 @@
 * `CameraPath`, `CameraKey`, `path_from_dataset`, `dataset_views`, `nerfstudio_camera_path`: keyframed camera
   paths (JSON; nerfstudio's in and out).
 * `orbit_cameras`, `path_cameras`, `scene_times`, `frame_model`: trajectories and scene-time schedules.
+* `RenderRequest` / `plan_render` -> `RenderJob`: what ``splatreel render`` draws, decided without argparse.
 * `PixelStack` / `PixelHit` (from `SplatRenderer.pick`), `describe`: which Gaussians make a pixel, and what one is.
 * `run_app` / `AppOptions`: the glfw + Dear ImGui desktop app (needs a display).
 
@@ -18,6 +19,7 @@ _EXPORTS = {
     "camera_path": ("CameraKey", "CameraPath", "DatasetView", "dataset_views", "nerfstudio_camera_path",
                     "path_from_dataset"),
     "headless": ("render_frames", "render_to_file"),
+    "render_job": ("RenderJob", "RenderRequest", "plan_render"),
     "pick": ("PixelHit", "PixelStack", "describe"),
     "renderer": ("COMPOSITE_ORDERS", "RENDER_MODES", "FrameStats", "RenderSettings", "SplatRenderer",
                  "headless_context", "render_image"),

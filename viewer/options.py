@@ -1,4 +1,5 @@
-"""Parsing of the options shared by ``splatreel view`` and ``splatreel render`` (sizes, colours, vectors)."""
+"""Parsing of the options shared by ``splatreel view`` and ``splatreel render`` (sizes, colours, vectors), and the
+options that set how splats are drawn (`add_look_args`, `look_settings`)."""
 
 from __future__ import annotations
 
@@ -102,11 +103,11 @@ def parse_positive(text: str) -> float:
     return value
 
 
-def add_footprint_args(parser: argparse.ArgumentParser) -> None:
+def add_footprint_args(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     """Which splats reach the screen and how far (`splatreel.viewer.sorting.Footprint`): the near plane and the
     performance guards, the trainer's by default (other values change the image)."""
     from splatreel.constants import NEAR_PLANE
-    from splatreel.covariance import TEMPORAL_FADES
+    from splatreel.constants import TEMPORAL_FADES
 
     parser.add_argument("--near-plane", type=argtype(parse_positive), default=NEAR_PLANE, metavar="D",
                         help=f"Gaussians closer to the camera than this depth are not drawn (default {NEAR_PLANE:g}, "
@@ -123,3 +124,37 @@ def add_footprint_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-screen-radius", type=argtype(parse_positive), default=None, metavar="SHARE",
                         help="cap each splat's radius at this share of the image height (e.g. 0.25), against "
                              "huge splats close to the camera filling the screen; default: no cap")
+
+
+def add_look_args(parser: argparse.ArgumentParser | argparse._ArgumentGroup, transparent: bool = True) -> None:
+    """How the splats are drawn (`RenderSettings`): --background, --mode, --sh-degree, --splat-scale, the footprint
+    options and --composite. `transparent`: whether the command can write a transparent background. Read the
+    values back with `look_settings`."""
+    from .render_settings import COMPOSITE_ORDERS, RENDER_MODES
+
+    colours = "white, black, grey, transparent" if transparent else "white, black, grey"
+    parser.add_argument("--background", default=None,
+                        help=f"{colours}, #rrggbb or r,g,b (default: the checkpoint's)")
+    # no argparse choices: parse_mode also takes aliases (colour, points, ...) and names the modes in its error
+    parser.add_argument("--mode", default="color",
+                        help=f"{', '.join(RENDER_MODES[:-1])} or {RENDER_MODES[-1]} (default color)")
+    parser.add_argument("--sh-degree", type=int, default=None, help="draw at a lower SH degree")
+    parser.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
+    add_footprint_args(parser)
+    parser.add_argument("--composite", choices=COMPOSITE_ORDERS, default=COMPOSITE_ORDERS[0],
+                        help=f"blending order (default {COMPOSITE_ORDERS[0]}; the same image either way, "
+                             "front-to-back stops saturated pixels early)")
+
+
+def look_settings(args: argparse.Namespace, checkpoint_background: tuple[float, float, float],
+                  value_range: tuple[float, float] | None = None):
+    """The `RenderSettings` of the options `add_look_args` added: --background, else `checkpoint_background`;
+    `value_range`: the colour map's ends (render's --map-range)."""
+    from .render_settings import RenderSettings
+
+    bg, transparent = parse_background(args.background)
+    return RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
+                          background=bg if bg is not None else checkpoint_background, transparent=transparent,
+                          composite=args.composite, value_range=value_range, max_std_dev=args.max_std_dev,
+                          max_screen_radius=args.max_screen_radius, near_plane=args.near_plane,
+                          temporal_fade=args.temporal_fade)

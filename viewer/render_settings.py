@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from splatreel.constants import NEAR_PLANE
-from splatreel.covariance import check_fade
 from splatreel.errors import GLError
 
-from .sorting import Footprint
+if TYPE_CHECKING:
+    from .sorting import Footprint
 
 #: Display modes, in the order of the app's combo box.
 RENDER_MODES: tuple[str, ...] = ("color", "depth", "alpha", "outlines", "centers", "speed", "lifespan", "fade")
@@ -83,6 +84,9 @@ class RenderSettings:
     temporal_fade: str = "cut"
 
     def __post_init__(self) -> None:
+        # imported here, not at the top: the CLI's option lists read this module's names without torch or numba
+        from splatreel.covariance import check_fade
+
         self.mode = parse_mode(self.mode)
         try:
             check_fade(self.temporal_fade)
@@ -102,6 +106,8 @@ class RenderSettings:
     def footprint(self) -> Footprint:
         """Which splats reach the screen and how far (`sorting.Footprint`): splat scale, caps and near plane.
         Raises GLError (one line) on a bad value, e.g. one typed into the app's panel."""
+        from .sorting import Footprint  # numba: see __post_init__
+
         try:
             return Footprint(self.splat_scale, math.inf if self.max_std_dev is None else self.max_std_dev,
                              math.inf if self.max_screen_radius is None else self.max_screen_radius, self.near_plane)

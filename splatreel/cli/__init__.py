@@ -3,7 +3,8 @@
 Each subcommand is a module in this package, found automatically, exposing ``HELP`` (one line),
 ``add_args(parser)``, ``run(args) -> int`` and optionally ``ORDER`` (its place in ``--help``; default 100) and
 ``DESCRIPTION``. The subcommand's name is the module's name (``_`` becomes ``-``). Heavy imports happen inside
-``run`` so that ``--help`` stays fast. Library code raises typed
+``run``, and `main` adds the options of the chosen subcommand only, so that ``splatreel --help`` and ``--version``
+import no torch (some ``add_args`` read a registry that does). Library code raises typed
 errors (`splatreel.errors`); only `main` turns them into ``splatreel: error: <one line>`` and an exit code.
 """
 
@@ -13,6 +14,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+from typing import Collection, Sequence
 
 from .. import __version__
 from ..errors import SplatreelError
@@ -30,7 +32,9 @@ def subcommands() -> dict[str, object]:
     return {name: mod for _, name, mod in sorted(mods, key=lambda m: (m[0], m[1]))}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(options_of: Collection[str] | None = None) -> argparse.ArgumentParser:
+    """The ``splatreel`` parser. `options_of`: the subcommands whose options are added (None: all, as the docs'
+    option reference needs); the others are listed in ``--help`` with their one line and take no options."""
     parser = argparse.ArgumentParser(
         prog="splatreel", description="Toolkit for 4D Gaussian assets: train, view, render, export.")
     parser.add_argument("--version", action="version", version=f"splatreel {__version__}")
@@ -38,15 +42,24 @@ def build_parser() -> argparse.ArgumentParser:
     for name, mod in subcommands().items():
         p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
-        mod.add_args(p)
+        if options_of is None or name in options_of:
+            mod.add_args(p)
         p.set_defaults(_run=mod.run)
     return parser
+
+
+def chosen_command(argv: Sequence[str]) -> set[str]:
+    """The subcommand named in `argv` (as a one-element set), or an empty set for ``--help``, ``--version`` or none.
+    The top-level parser has no option that takes a value, so the first word that is not an option is the command."""
+    words = [a for a in argv if not a.startswith("-")]
+    return set(words[:1])
 
 
 def main(argv: list[str] | None = None) -> int:
     import warnings
 
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(options_of=chosen_command(argv))
     args = parser.parse_args(argv)
     # a warning is one line that names the command, like an error, not a source location and a code line
     previous = warnings.formatwarning

@@ -12,7 +12,7 @@ Convert another tool's model into a splatreel checkpoint (.safetensors).
 INPUT is one of:
   chkpnt30000.pth / model.pth     official 4DGS (main) or Efficient4D checkpoint, or the folder holding it
   output/<run>/                   4DGaussians or 4DGen output (point_cloud/iteration_N/ + deformation.pth),
-                                  baked into --frames keyframes
+                                  baked into --bake-frames keyframes
   point_cloud.ply                 one 3DGS PLY (static model)
   frames/  or  'frames/*.ply'     per-frame 3DGS PLYs (keyframes; quote the glob)
   model.safetensors               a splatreel checkpoint (re-saved)
@@ -23,7 +23,7 @@ Values a file does not store are assumed, printed and recorded in the checkpoint
 examples:
   splatreel convert chkpnt30000.pth --out lego.safetensors --convention current --time-range 0 1
   splatreel convert efficient4d/model.pth --out e4d.safetensors          # legacy rotation, 0..15, white
-  splatreel convert output/dnerf/lego --out lego4dgs.safetensors --frames 50
+  splatreel convert output/dnerf/lego --out lego4dgs.safetensors --bake-frames 50
   splatreel convert 'frames/*.ply' --out seq.safetensors --time-range 0 2
   splatreel convert model.safetensors --out tidy.safetensors --crop -1 -1 0 1 1 2   # drop floaters outside a box
 """
@@ -31,7 +31,7 @@ examples:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from ..importers import add_import_args
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg
 
     p.add_argument("input", metavar="INPUT", help="file, folder or quoted glob to convert")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from ..formats import load_model
     from ..importers import import_options
     from ..model import CropBox
-    from ._crop import apply_crop
+    from ._shared_options import apply_crop
 
     out = Path(args.out)
     if out.suffix != SUFFIX:

@@ -11,14 +11,14 @@ HELP = "render a dataset's test views with a model and report PSNR / SSIM per vi
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("checkpoint", metavar="CKPT", help="model file")
     p.add_argument("data", metavar="DATA", help="dataset folder")
-    p.add_argument("--json", metavar="OUT", help="also write the results as JSON to this file")
+    p.add_argument("--out", "-o", metavar="JSON", help="also write the results as JSON to this file")
     p.add_argument("--split", choices=["test", "train"], default="test",
                    help="which views to render (default: test; datasets without test views need train)")
     p.add_argument("--downscale", type=int, default=1, metavar="K", help="evaluate at 1/K resolution")
     p.add_argument("--layout", default="auto", choices=["auto", "dnerf", "orbit", "efficient4d", "sv4d"])
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                    help="background colour (default: the checkpoint's)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing --json file")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,8 +28,8 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.train.data import load_dataset
     from splatreel.train.evaluate import evaluate
 
-    if args.json:
-        check_writable(args.json, args.force)
+    if args.out:
+        check_writable(args.out, args.force)
     ck = load_model(args.checkpoint)
     ds = load_dataset(args.data, layout=args.layout, downscale=args.downscale)
     views = ds.test if args.split == "test" else ds.train
@@ -42,6 +42,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.split} views: {res['num_views']}  PSNR {res['psnr']:.2f} dB  SSIM {res['ssim']:.4f}  "
           f"({res['seconds']:.1f} s)")
     print(res["lpips_note"])
-    if args.json:
-        atomic_write_json(args.json, res, force=args.force)
+    if args.out:
+        atomic_write_json(args.out, res, force=args.force)
     return 0

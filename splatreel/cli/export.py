@@ -1,5 +1,5 @@
-"""``splatreel export FORMAT CKPT OUT``: OpenUSD, per-frame meshes or per-frame 3DGS PLY (formats from the registry
-in `splatreel.export`)."""
+"""``splatreel export FORMAT CKPT --out OUT``: OpenUSD, per-frame meshes or per-frame 3DGS PLY (formats from the
+registry in `splatreel.export`)."""
 
 from __future__ import annotations
 
@@ -9,28 +9,30 @@ ORDER = 60
 HELP = "export a model to OpenUSD (splats, instancer, points), per-frame meshes or per-frame 3DGS PLY"
 DESCRIPTION = HELP + """.
 
-Frames: frame i of N is at model time t0 + i (t1 - t0) / (N - 1), where [t0, t1] is the model's time range or
---start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets timeCodesPerSecond.
+Frames: frame i of N (--frame-count) is at model time t0 + i (t1 - t0) / (N - 1), where [t0, t1] is the model's
+time range or --start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets
+timeCodesPerSecond.
 Gaussians keep their model order at every frame; those invisible at a frame get opacity 0.
 Run `splatreel export FORMAT --help` for a format's options."""
 
-#: Frames exported when --frames is not given and the model has no keyframes of its own.
+#: Frames exported when --frame-count is not given and the model has no keyframes of its own.
 DEFAULT_FRAMES = 48
 
 
 def _add_common(q: argparse.ArgumentParser, output: str) -> None:
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg, add_up_arg
 
     q.add_argument("checkpoint", metavar="CKPT", help="model file (splatreel checkpoint or any imported format)")
-    q.add_argument("out", metavar=output, help="output file or folder")
-    q.add_argument("--frames", type=int, default=None, metavar="N",
+    q.add_argument("--out", "-o", required=True, metavar=output, help="output file or folder")
+    q.add_argument("--frame-count", type=int, default=None, metavar="N",
                    help=f"number of frames (default: the keyframe count of a keyframed model, else {DEFAULT_FRAMES})")
     q.add_argument("--fps", type=float, default=24.0, help="frames per second of the exported sequence (default 24)")
     q.add_argument("--start", type=float, default=None, metavar="T", help="model time of the first frame (default t0)")
     q.add_argument("--end", type=float, default=None, metavar="T", help="model time of the last frame (default t1)")
-    q.add_argument("--up-axis", choices=("Y", "Z"), default=None,
-                   help="the model's up axis, written as metadata; data is not rotated (default: the checkpoint's "
-                        "provenance 'up_axis' if recorded, else Y)")
+    # USD's upAxis is Y or Z (https://openusd.org/release/api/group___usd_geom_up_axis__group.html)
+    add_up_arg(q, ("y", "z"), default=None, dest="up_axis",
+               help="the model's up axis, written as metadata; data is not rotated (default: the checkpoint's "
+                    "provenance 'up_axis' if recorded, else y)")
     q.add_argument("--meters-per-unit", type=float, default=1.0, help="scene units in metres (default 1)")
     add_crop_arg(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -61,14 +63,16 @@ def run(args: argparse.Namespace) -> int:
     from ..export import ExportError, exporters, frame_times
     from ..fileio import check_writable
     from ..formats import load_model
-    from ._crop import apply_crop
+    from ._shared_options import apply_crop
 
     check_writable(args.out, args.force)  # refuse before loading anything
     if not (args.fps > 0 and args.meters_per_unit > 0):
         raise ExportError(f"--fps and --meters-per-unit must be positive, got {args.fps} and {args.meters_per_unit}")
+    if args.frame_count is not None and args.frame_count < 1:
+        raise ExportError(f"--frame-count must be a positive integer, got {args.frame_count}")
     ckpt = load_model(args.checkpoint)
     model = apply_crop(ckpt.model, args.crop)
-    frames = args.frames if args.frames is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
+    frames = args.frame_count if args.frame_count is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
     times = frame_times(model.time_range, frames, args.start, args.end)
     args.provenance = dict(ckpt.provenance or {})
     args.progress = not args.quiet

@@ -16,10 +16,10 @@ examples:
   splatreel render --out sample.mp4                  (the bundled trained sample)
   splatreel render model.safetensors --out orbit.mp4
   splatreel render model.safetensors --out spin.mp4 --trajectory spiral --turns 2 --time-mode timelapse
-  splatreel render model.safetensors --out frames --image-format exr --background transparent --frames 48
+  splatreel render model.safetensors --out frames --image-format exr --background transparent --frame-count 48
   splatreel render model.safetensors --out comp.mov --background transparent     (ProRes 4444 for editors)
   splatreel render model.safetensors --out core.mp4 --crop -0.5 -0.5 -0.5 0.5 0.5 0.5   (only what is in the box)
-  splatreel render model.safetensors --out still.png --frames 1 --time 0.5 --azimuth 45
+  splatreel render model.safetensors --out still.png --frame-count 1 --time 0.5 --azimuth 45
   splatreel render model.safetensors --out tour.mp4 --path tour.json
   splatreel render model.safetensors --out train_views.mp4 --cameras data/spinner --fps 10
   splatreel render model.safetensors --out orbit.mp4 --save-cameras orbit_cameras.json   (the same cameras elsewhere)
@@ -27,16 +27,11 @@ examples:
 """
 
 
-DEFAULT_SIZE = (1280, 720)
-DEFAULT_PANORAMA_SIZE = (2048, 1024)
-DEFAULT_FPS = 30.0
-
-
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splatreel.viewer.options import add_footprint_args, argtype, parse_size, parse_vector
+    from splatreel.viewer.options import add_look_args, argtype, parse_size, parse_vector
     from splatreel.viewer.panorama import PROJECTIONS
 
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg, add_up_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
@@ -52,7 +47,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "--projection equirect; even for .mp4 and .webm)")
     g.add_argument("--fps", type=float, default=None,
                    help="frames per second (default: the camera path file's, else 30)")
-    g.add_argument("--frames", type=int, default=None,
+    g.add_argument("--frame-count", type=int, default=None, metavar="N",
                    help="number of frames (default: 1 for a .png/.exr image, else --seconds x --fps, or the whole "
                         "camera path)")
     g.add_argument("--seconds", type=float, default=4.0, help="video length for orbit/spiral (default 4)")
@@ -82,7 +77,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="equirect: 360° panoramas (2:1) seen from each camera's position, its view direction at "
                         "the centre, .mp4/.mov tagged as 360° video; --fov does not apply (default perspective, or "
                         "what the path file says)")
-    c.add_argument("--up", default="z", choices=("x", "y", "z", "-x", "-y", "-z"), help="world up axis (default z)")
+    add_up_arg(c)
     t = p.add_argument_group("scene time")
     t.add_argument("--time-mode", choices=("loop", "timelapse", "hold", "path"), default=None,
                    help="loop: the animation repeats every --loop-seconds; timelapse: one pass over the whole "
@@ -92,119 +87,67 @@ def add_args(p: argparse.ArgumentParser) -> None:
     t.add_argument("--loop-seconds", type=float, default=2.0,
                    help="video seconds per pass through the time range in loop mode (default 2)")
     s = p.add_argument_group("look")
-    s.add_argument("--background", default=None,
-                   help="white, black, grey, transparent, #rrggbb or r,g,b (default: the checkpoint's)")
-    s.add_argument("--mode", default="color",
-                   help="color, depth, alpha, outlines, centers, speed, lifespan or fade (default color)")
+    add_look_args(s)
     s.add_argument("--map-range", type=argtype(lambda s: parse_vector(s, 2, "--map-range")), default=None,
                    metavar="LO,HI", help="ends of the colour map of --mode depth (near,far camera depth), speed "
                                          "(slow,fast in world units per unit of model time), lifespan "
                                          "(brief,long in model time) or fade; default: the depths seen over the "
                                          "video, 0 to the model's 98th-percentile speed, 0 to the model's time "
                                          "span, 0 to 1")
-    s.add_argument("--sh-degree", type=int, default=None, help="render at a lower SH degree")
-    s.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
-    add_footprint_args(s)
-    s.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
-                   help="blending order (same image; front-to-back stops saturated pixels early)")
     add_crop_arg(s, "; orbits frame what is left")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def request_of(args: argparse.Namespace):
+    """The `RenderRequest` of the parsed options."""
+    from splatreel.viewer.render_job import RenderRequest
+
+    return RenderRequest(
+        out=args.out, trajectory=args.trajectory, path_file=args.path, cameras=args.cameras, split=args.split,
+        seconds_per_key=args.seconds_per_key, size=args.size, fps=args.fps, frame_count=args.frame_count,
+        seconds=args.seconds, elevation=args.elevation, azimuth=args.azimuth, amplitude=args.amplitude,
+        turns=args.turns, distance=args.distance, target=args.target, fov=args.fov, projection=args.projection,
+        up=args.up, time_mode=args.time_mode, time=args.time, loop_seconds=args.loop_seconds)
+
+
 def run(args: argparse.Namespace) -> int:
+    import statistics
     from pathlib import Path
 
-    from splatreel.errors import CameraError
+    from splatreel.fileio import atomic_write_json, check_writable
     from splatreel.formats import load_model
     from splatreel.samples.trained import trained_checkpoint
-    from splatreel.fileio import atomic_write_json, check_writable
-    from splatreel.viewer.camera_path import CameraPath, nerfstudio_camera_path, path_from_dataset
+    from splatreel.viewer.camera_path import nerfstudio_camera_path
     from splatreel.viewer.headless import render_to_file
-    from splatreel.viewer.options import OptionError, parse_background
-    from splatreel.viewer.output import output_kind
-    from splatreel.viewer.panorama import Equirect
-    from splatreel.viewer.renderer import RenderSettings
-    from splatreel.viewer.trajectory import (frame_model, orbit_cameras, path_cameras, path_frame_count,
-                                           scene_times)
+    from splatreel.viewer.options import OptionError, look_settings
+    from splatreel.viewer.render_job import check_request, load_camera_path, plan_render
 
-    from ._crop import apply_crop
+    from ._shared_options import apply_crop
 
-    if args.fps is not None and not args.fps > 0:
-        raise OptionError(f"--fps must be positive, got {args.fps}")
-    if args.frames is not None and args.frames < 1:
-        raise OptionError(f"--frames must be at least 1, got {args.frames}")
-    if args.path and args.cameras:
-        raise OptionError("give either --path or --cameras, not both")
+    request = check_request(request_of(args))
     if args.map_range is not None and not args.map_range[0] < args.map_range[1]:
         raise OptionError(f"--map-range needs LO < HI, got {args.map_range[0]:g},{args.map_range[1]:g}")
-    if not 0 < args.fov < 180:
-        raise OptionError(f"--fov must be in (0, 180) degrees, got {args.fov}")
     if args.save_cameras:
         check_writable(args.save_cameras, args.force)
         if Path(args.save_cameras).resolve() == Path(args.out).resolve():
             raise OptionError(f"--save-cameras {args.save_cameras} is the --out file; give the cameras a file of "
                               "their own")
-    if output_kind(args.out) == "image":  # checked before any rendering: a still is one frame
-        if args.frames is not None and args.frames > 1:
-            raise OptionError(f"{args.out} holds one image, not {args.frames} frames; give a folder name for "
-                              "numbered frames, or a video")
-        args.frames = 1
-    bg, transparent = parse_background(args.background)
     ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
     model = apply_crop(ckpt.model, args.crop)
-    settings = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
-                              background=bg if bg is not None else ckpt.background, transparent=transparent,
-                              composite=args.composite, value_range=args.map_range,
-                              max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius,
-                              near_plane=args.near_plane, temporal_fade=args.temporal_fade)
+    settings = look_settings(args, ckpt.background, value_range=args.map_range)
+    job = plan_render(request, model, load_camera_path(request, model.time_range), settings)
 
-    trajectory = args.trajectory or ("path" if (args.path or args.cameras) else "orbit")
-    path = None
-    if trajectory == "path":
-        if args.path:
-            path = CameraPath.load(args.path, time_range=model.time_range)
-        elif args.cameras:
-            path = path_from_dataset(args.cameras, args.split, args.seconds_per_key, args.up)
-        else:
-            raise OptionError("--trajectory path needs --path FILE or --cameras DATASET")
-    # a path file may say how it is meant to be rendered (a nerfstudio path always does)
-    projection = args.projection or (path.projection if path is not None else "perspective")
-    default_size = DEFAULT_PANORAMA_SIZE if projection == "equirect" else DEFAULT_SIZE
-    width, height = args.size or (path is not None and path.projection == projection and path.image_size) \
-        or default_size
-    equirect = Equirect(width, height) if projection == "equirect" else None
-    fps = args.fps or (path is not None and path.fps) or DEFAULT_FPS
-    if path is not None:
-        frames = args.frames or path_frame_count(path, fps)
-        cameras = path_cameras(path, frames, fps, width, height)
-    else:
-        frames = args.frames or max(1, int(round(args.seconds * fps)))
-        framing = frame_model(model)
-        target = framing.center if args.target is None else args.target
-        distance = args.distance or framing.distance(args.fov)
-        cameras = orbit_cameras(frames, width, height, target, distance, args.elevation, args.fov, args.up,
-                                args.turns, args.azimuth, args.amplitude if trajectory == "spiral" else 0.0)
-
-    mode = args.time_mode
-    if mode is None:
-        mode = ("path" if path is not None and path.has_scene_time else "hold" if args.time is not None
-                else "loop")
-    if args.time is not None and mode != "hold":
-        raise OptionError(f"--time sets the held time; it does not apply to --time-mode {mode}")
-    times = scene_times(mode, frames, fps, model.time_range, args.loop_seconds, args.time, path)
-    if mode == "path" and path is None:
-        raise CameraError("--time-mode path needs --path or --cameras")
-
-    summary = render_to_file(model, args.out, cameras, times, settings, fps, args.image_format, args.force,
-                             progress=False if args.quiet else "render", crf=args.crf, equirect=equirect)
+    summary = render_to_file(model, args.out, job.cameras, job.times, job.settings, job.fps, args.image_format,
+                             args.force, progress=False if args.quiet else "render", crf=args.crf,
+                             equirect=job.equirect)
     if args.save_cameras:
-        atomic_write_json(args.save_cameras, nerfstudio_camera_path(cameras, fps, times, model.time_range,
-                                                                    projection, (width, height)), args.force)
-    import statistics
-
+        atomic_write_json(args.save_cameras, nerfstudio_camera_path(job.cameras, job.fps, job.times,
+                                                                    model.time_range, job.projection, job.size),
+                          args.force)
     median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)
+    width, height = job.size
     print(f"wrote {args.out}: {summary.frames} frame(s) {width}x{height}"
-          + (f" at {fps:g} fps" if summary.frames > 1 else "")
+          + (f" at {job.fps:g} fps" if summary.frames > 1 else "")
           + f", {len(model):,} Gaussians, median sort {median(summary.sort_ms):.1f} ms + draw "
             f"{median(summary.draw_ms):.1f} ms per frame" + (f"; cameras in {args.save_cameras}"
                                                              if args.save_cameras else ""))

@@ -1,4 +1,5 @@
-"""``splatreel sample NAME OUT``: render a procedural animated object to a D-NeRF layout dataset, or build a model."""
+"""``splatreel sample NAME --out DIR``: render a procedural animated object to a D-NeRF layout dataset, or build a
+model."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ ORDER = 20
 HELP = "render a procedural animated test object to a dataset (D-NeRF layout) and/or a 4D Gaussian model"
 DESCRIPTION = """\
 Render a procedural animated test object (see --list) from an orbit of cameras to a multi-view video dataset in
-the D-NeRF layout: OUT/transforms_{train,test,val}.json, OUT/train/r_000.png ..., OUT/test/..., OUT/sample.json.
-Training images are an image matrix of --views azimuths x --frames times (ordered by time, then view); test images
+the D-NeRF layout: DIR/transforms_{train,test,val}.json, DIR/train/r_000.png ..., DIR/test/..., DIR/sample.json.
+Training images are an image matrix of --views azimuths x --time-steps times (ordered by time, then view); test images
 use other azimuths and elevations at times between the training frames. --model also writes a native 4D Gaussian
 checkpoint built from the object's known motion (no training); --trained copies the bundled checkpoint that
 `splatreel train` fitted to the sample's default dataset (samples marked 'trained' in --list).
@@ -17,33 +18,34 @@ checkpoint built from the object's known motion (no training); --trained copies 
 The scene 'floor' has its own rig instead: moving objects above a white floor to the horizon, 12 fixed cameras
 (11 around it, one straight down from above), ONE camera per time (frame i by camera i mod 12; test images at
 those cameras, times between), and alpha that marks what lies nearer than a far clip, so the top camera's floor
-is transparent while the side cameras' is opaque (on purpose). It takes --frames (default 96, at least 12),
+is transparent while the side cameras' is opaque (on purpose). It takes --time-steps (default 96, at least 12),
 --size (200), --test-views (12) and --fov (45); --views, --elevation and --radius do not apply to it. Its
 --model is the scene's exact model (by default 5 Gaussians per pixel of --size; white background): the objects
 from their known motion, the floor as static Gaussians where most cameras see it nearer than the far clip.
 `splatreel eval` of it on the dataset gives the upper bound a trained model is compared with (pass the dataset's
---frames, --size and --fov).
+--time-steps, --size and --fov).
 
 examples:
   splatreel sample --list
-  splatreel sample spinner data/spinner
-  splatreel sample wave data/wave --views 8 --frames 24 --size 512
+  splatreel sample spinner --out data/spinner
+  splatreel sample wave --out data/wave --views 8 --time-steps 24 --size 512
   splatreel sample morph --model morph.safetensors
   splatreel sample spinner --trained spinner.safetensors
-  splatreel sample floor data/floor --frames 48
-  splatreel sample floor data/floor --frames 48 --model floor.safetensors
+  splatreel sample floor --out data/floor --time-steps 48
+  splatreel sample floor --out data/floor --time-steps 48 --model floor.safetensors
 """
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("name", nargs="?", metavar="NAME", help="sample to render (see --list)")
-    p.add_argument("out", nargs="?", metavar="OUT", help="dataset folder to write (may be left out with --model)")
+    p.add_argument("--out", "-o", metavar="DIR",
+                   help="dataset folder to write (may be left out with --model or --trained)")
     p.add_argument("--list", action="store_true", help="list the samples with a one-line description and exit")
     d = p.add_argument_group("dataset")
     # Defaults are None so that a scene can tell an option given from one left out (see _scene_config).
     d.add_argument("--views", type=int, default=None, help="training azimuths per frame, evenly spaced (default 16)")
-    d.add_argument("--frames", type=int, default=None,
-                   help="training times f/(frames-1); also the model's key times (default 16; floor: 96)")
+    d.add_argument("--time-steps", type=int, default=None, metavar="N",
+                   help="training times f/(N-1), f = 0..N-1; also the model's key times (default 16; floor: 96)")
     d.add_argument("--size", type=int, default=None, help="image width = height in pixels (default 256; floor: 200)")
     d.add_argument("--elevation", type=float, default=None,
                    help="training elevation, degrees above the horizon (default 30)")
@@ -70,7 +72,7 @@ def _given(args: argparse.Namespace, **values) -> dict:
 def _object_config(args: argparse.Namespace):
     from ..samples import DatasetConfig
 
-    return DatasetConfig(**_given(args, views=args.views, frames=args.frames, size=args.size,
+    return DatasetConfig(**_given(args, views=args.views, frames=args.time_steps, size=args.size,
                                   elevation=args.elevation, radius=args.radius, fov=args.fov,
                                   test_views=args.test_views))
 
@@ -85,8 +87,8 @@ def _scene_config(args: argparse.Namespace):
     if given:
         raise SplatreelError(f"{', '.join(given)} do{'es' if len(given) == 1 else ''} not apply to sample "
                            f"{args.name!r}: it has its own fixed rig of 12 cameras; "
-                           "it takes --frames, --size, --test-views and --fov")
-    return FloorConfig(**_given(args, frames=args.frames, size=args.size, test_views=args.test_views,
+                           "it takes --time-steps, --size, --test-views and --fov")
+    return FloorConfig(**_given(args, frames=args.time_steps, size=args.size, test_views=args.test_views,
                                 fov=args.fov))
 
 
@@ -104,11 +106,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name:<{width}}  {description}{'  (trained checkpoint bundled)' if name in TRAINED else ''}")
         return 0
     if not args.name:
-        raise SplatreelError(f"give a sample NAME ({', '.join([*SAMPLES, *SCENES])}) and an OUT folder, --model "
+        raise SplatreelError(f"give a sample NAME ({', '.join([*SAMPLES, *SCENES])}) and an --out folder, --model "
                            "and/or --trained")
     get_sample(args.name)  # unknown name: one line listing the names
     if not args.out and not args.model and not args.trained:
-        raise SplatreelError("nothing to write: give an OUT folder, --model MODEL.safetensors and/or --trained CKPT")
+        raise SplatreelError("nothing to write: give --out DIR, --model MODEL.safetensors and/or --trained CKPT")
     scene = args.name in SCENES
     config = _scene_config(args) if scene else _object_config(args)
     bundled = trained_checkpoint(args.name) if args.trained else None  # not bundled: fail before any work

@@ -27,7 +27,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.train.config import PRESETS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
-    p.add_argument("--out", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
+    p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
     p.add_argument("--preset", default="auto", choices=list(PRESETS),
                    help="; ".join(f"{k}: {v[0]}" for k, v in PRESETS.items()))
     budget = p.add_mutually_exclusive_group()

@@ -30,25 +30,17 @@ examples:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splatreel.viewer.options import add_footprint_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
+    from splatreel.viewer.options import add_look_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
 
-    from ._crop import add_crop_arg
+    from ._shared_options import add_crop_arg, add_up_arg
 
     p.add_argument("checkpoint", metavar="CKPT", nargs="?", default=None,
                    help="model file (splatreel checkpoint or any importable format; default: the bundled sample)")
     p.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
                    help="window size (default 1280x720)")
-    p.add_argument("--up", default="z", choices=("y", "z"), help="world up axis for orbiting (default z)")
+    add_up_arg(p, ("y", "z"), help="world up axis for orbiting")
     p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
-    p.add_argument("--background", default=None,
-                   help="white, black, grey, #rrggbb or r,g,b (default: the checkpoint's)")
-    p.add_argument("--mode", default="color",
-                   help="color, depth, alpha, outlines, centers, speed, lifespan or fade (default color)")
-    p.add_argument("--splat-scale", type=float, default=1.0, help="scale every Gaussian (default 1)")
-    add_footprint_args(p)
-    p.add_argument("--sh-degree", type=int, default=None, help="display at a lower SH degree")
-    p.add_argument("--composite", choices=("front-to-back", "back-to-front"), default="front-to-back",
-                   help="blending order (default front-to-back)")
+    add_look_args(p, transparent=False)
     p.add_argument("--paused", action="store_true", help="start with playback paused")
     p.add_argument("--time", type=float, default=None, help="model time to start at (default: mid-range)")
     p.add_argument("--loop-seconds", type=float, default=2.0,
@@ -95,10 +87,9 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.viewer.app import AppOptions, run_app
     from splatreel.viewer.camera_path import CameraPath, dataset_views
     from splatreel.viewer.controls import RESOLUTION_STEPS
-    from splatreel.viewer.options import OptionError, parse_background
-    from splatreel.viewer.renderer import RenderSettings
+    from splatreel.viewer.options import OptionError, look_settings, parse_background
 
-    from ._crop import check_crop
+    from ._shared_options import check_crop
 
     bg, transparent = parse_background(args.background)
     if transparent:
@@ -125,10 +116,7 @@ def run(args: argparse.Namespace) -> int:
     if not any(abs(args.render_scale - step) < 1e-9 for step in RESOLUTION_STEPS):
         raise OptionError(f"--render-scale must be a multiple of 1/8 between 0.25 and 1 (0.25, 0.375, 0.5, ... 1), "
                           f"got {args.render_scale}")
-    look = RenderSettings(mode=args.mode, splat_scale=args.splat_scale, sh_degree=args.sh_degree,
-                          composite=args.composite, background=bg or (0.0, 0.0, 0.0),
-                          max_std_dev=args.max_std_dev, max_screen_radius=args.max_screen_radius,
-                          near_plane=args.near_plane, temporal_fade=args.temporal_fade)
+    look = look_settings(args, (0.0, 0.0, 0.0))  # the app sets the checkpoint's background when it loads one
     options = AppOptions(size=args.size, up=args.up, fov=args.fov, settings=look, checkpoint_background=bg is None,
                          play=not args.paused, time=args.time, loop_seconds=args.loop_seconds, cameras=args.cameras,
                          split=args.split, camera_path=args.path, play_path=args.play_path,

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..covariance import ROTATION_CONVENTIONS
+from ..constants import ROTATION_CONVENTIONS
 from ..errors import CheckpointError
 
 log = logging.getLogger("splatreel.importers")

@@ -32,13 +32,25 @@ def subcommands() -> dict[str, object]:
     return {name: mod for _, name, mod in sorted(mods, key=lambda m: (m[0], m[1]))}
 
 
+#: exit codes: a library error (bad input file, unwritable output ...), a usage error (bad option), Ctrl-C
+EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line naming the command and pointing to its ``--help``
+    (argparse prints the whole usage block first), exit code `EXIT_USAGE`, argparse's convention."""
+
+    def error(self, message: str):  # noqa: D102  (argparse's hook)
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser(options_of: Collection[str] | None = None) -> argparse.ArgumentParser:
     """The ``splatreel`` parser. `options_of`: the subcommands whose options are added (None: all, as the docs'
     option reference needs); the others are listed in ``--help`` with their one line and take no options."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="splatreel", description="Toolkit for 4D Gaussian assets: train, view, render, export.")
     parser.add_argument("--version", action="version", version=f"splatreel {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, parser_class=OneLineParser)
     for name, mod in subcommands().items():
         p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -65,16 +77,26 @@ def main(argv: list[str] | None = None) -> int:
     previous = warnings.formatwarning
     warnings.formatwarning = lambda message, *_, **__: f"splatreel {args.command}: warning: {message}\n"
     try:
-        return int(args._run(args) or 0)
+        code = int(args._run(args) or 0)
+        sys.stdout.flush()  # inside the try: a reader that went away is a BrokenPipeError here, not at exit
+        return code
     except SplatreelError as exc:
         print(f"splatreel {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_ERROR
     except KeyboardInterrupt:
         print(f"splatreel {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
-        print(f"splatreel {args.command}: error: {exc.strerror or exc}: {exc.filename}", file=sys.stderr)
-        return 1
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # the reader went away (`splatreel info M --json | head`): stop quietly, as cat and grep do; the
+        # interpreter's own flush at exit would fail again, so stdout goes to /dev/null first
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_ERROR
+    except OSError as exc:  # any other OS error: one line naming the file, not a traceback
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"splatreel {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return EXIT_ERROR
     finally:
         warnings.formatwarning = previous
 

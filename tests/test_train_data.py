@@ -95,6 +95,29 @@ def test_dnerf_layout(tmp_path):
     check_reprojection(ds, P_ZUP)
 
 
+
+@pytest.mark.parametrize("sizes_in_json", [False, True])
+def test_trainer_and_viewer_read_the_same_dnerf_cameras(tmp_path, sizes_in_json):
+    """One D-NeRF reader: the trainer's views and the viewer's dataset cameras agree on poses, intrinsics, image
+    sizes (from the images when the JSON has no w/h) and times, for every split."""
+    from splatreel.viewer.camera_path import dataset_views
+
+    make_dnerf(tmp_path)
+    if sizes_in_json:
+        for split in ("train", "test"):
+            f = tmp_path / f"transforms_{split}.json"
+            f.write_text(json.dumps({**json.loads(f.read_text()), "w": 48, "h": 40}))
+    ds = load_dataset(tmp_path)
+    for split, trained in (("train", ds.train), ("test", ds.test)):
+        viewed = dataset_views(tmp_path, split)
+        assert len(viewed) == len(trained) == 4
+        for t, v in zip(trained, viewed):
+            assert (v.camera.width, v.camera.height) == (t.camera.width, t.camera.height) == (48, 40)
+            np.testing.assert_allclose(v.camera.c2w, t.camera.c2w, atol=1e-12)
+            assert (v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy) == \
+                (t.camera.fx, t.camera.fy, t.camera.cx, t.camera.cy)
+            assert v.time == t.time and t.name.endswith(v.name.lstrip("./") + ".png")
+
 @pytest.mark.parametrize("declared, expected", [([0, 0, 0], (0.0, 0.0, 0.0)), ("black", (0.0, 0.0, 0.0)),
                                                 ([0.5, 0.25, 1], (0.5, 0.25, 1.0)), ("White", (1.0, 1.0, 1.0))])
 def test_dnerf_background_from_json_and_override(tmp_path, declared, expected):

@@ -7,50 +7,118 @@ RGBA images are composited on white, the layout's convention (D-NeRF's ``configs
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from splatreel.cameras import nerf_frame_camera
+from splatreel.cameras import Camera, nerf_frame_camera
 from splatreel.errors import CameraError, DatasetError
 
 from .base import Dataset, View, json_background, load_json, read_image, time_of
 
-# --- D-NeRF ----------------------------------------------------------------------------------------------------
+#: The image size when neither the JSON (``w``, ``h``) nor an image gives one: D-NeRF's Blender renders are
+#: 800 x 800 (its ``load_blender.py`` reads them at ``H, W = imgs[0].shape[:2]``).
+DEFAULT_SIZE = (800, 800)
+#: The image extension when ``file_path`` has none and the JSON names no ``extension``: D-NeRF's ``load_blender.py``
+#: appends ``.png``.
+DEFAULT_EXTENSION = ".png"
+SPLITS = ("train", "val", "test")
 
-def _dnerf_split(root: Path, split: str) -> tuple[list[View], dict]:
-    """The views of ``transforms_<split>.json`` and the JSON itself."""
-    meta = load_json(root / f"transforms_{split}.json")
+
+@dataclass(frozen=True)
+class TransformsFrame:
+    """One frame of a ``transforms_*.json``: where its image is, its camera and its time."""
+
+    file_path: str  # as the JSON writes it (``./train/r_000``), the name the viewer shows
+    image: Path  # the image file (`image_file`)
+    camera: Camera
+    time: float
+    size_declared: bool  # the JSON gives the image size (w, h); else it came from the split's first image
+
+
+def transforms_files(path: Path, split: str | None) -> list[Path]:
+    """The transforms JSONs of a dataset folder (``transforms_<split>.json``; ``split=None``: every split there is,
+    else a single ``transforms.json``), or `path` itself when it is a file."""
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise DatasetError(f"{path}: no such dataset folder or transforms file")
+    files = [path / f"transforms_{s}.json" for s in ([split] if split else SPLITS)
+             if (path / f"transforms_{s}.json").is_file()]
+    if not files and (path / "transforms.json").is_file():
+        files = [path / "transforms.json"]
+    if not files:
+        raise DatasetError(f"{path}: no transforms_{split or 'train'}.json (D-NeRF / Blender dataset layout)")
+    return files
+
+
+def image_file(root: Path, frame: dict, meta: dict) -> Path:
+    """A frame's image: ``file_path`` as written when it has an extension, else plus the frame's or the JSON's
+    ``extension`` (default `DEFAULT_EXTENSION`)."""
+    rel = frame["file_path"]
+    if not Path(rel).suffix:
+        rel = rel + frame.get("extension", meta.get("extension", DEFAULT_EXTENSION))
+    return (root / rel).resolve()
+
+
+def _declared_size(frame: dict, meta: dict) -> tuple[int, int] | None:
+    w, h = frame.get("w", meta.get("w")), frame.get("h", meta.get("h"))
+    return (int(w), int(h)) if w and h else None
+
+
+def _file_size(path: Path) -> tuple[int, int] | None:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
+    return None if img is None else (img.shape[1], img.shape[0])
+
+
+def read_transforms(path: Path) -> tuple[list[TransformsFrame], dict]:
+    """The frames of one ``transforms_*.json`` and the JSON itself. A frame's image size is the JSON's ``w``/``h``
+    (per frame, else top level), else the size of the split's first image, else `DEFAULT_SIZE`; its time is
+    ``time``, else evenly spaced over [0, 1] in file order."""
+    meta = load_json(path)
     frames = meta.get("frames")
     if not isinstance(frames, list) or not frames:
-        raise DatasetError(f"{root / f'transforms_{split}.json'}: no frames")
-    views = []
+        raise DatasetError(f"{path}: no frames")
+    out: list[TransformsFrame] = []
+    first_size = None
     for i, fr in enumerate(frames):
-        where = f"{root / f'transforms_{split}.json'} frame {i}"
+        where = f"{path} frame {i}"
         try:
-            rel = fr["file_path"]
-        except (KeyError, TypeError) as exc:
+            image = image_file(path.parent, fr, meta)
+            size = _declared_size(fr, meta)
+        except (KeyError, TypeError, ValueError) as exc:
             raise DatasetError(f"{where}: missing or invalid {exc}") from None
-        path = (root / rel).resolve() if Path(rel).suffix else None
-        if path is None:
-            path = (root / (rel + fr.get("extension", meta.get("extension", ".png")))).resolve()
-        rgb, alpha = read_image(path)
-        h, w = rgb.shape[:2]
-        if int(fr.get("w", meta.get("w", w))) != w or int(fr.get("h", meta.get("h", h))) != h:
-            raise DatasetError(f"{path}: image is {w}x{h} but the JSON says "
-                               f"{fr.get('w', meta.get('w'))}x{fr.get('h', meta.get('h'))}")
+        if size is None:
+            first_size = first_size or _file_size(image) or DEFAULT_SIZE
         try:  # per-frame intrinsics override top-level ones, which override camera_angle_x
-            cam = nerf_frame_camera(fr, meta, w, h)
+            cam = nerf_frame_camera(fr, meta, *(size or first_size))
         except CameraError as exc:
             raise DatasetError(f"{where}: {exc}") from None
-        t = float(fr.get("time", time_of(i, len(frames))))
+        try:
+            t = float(fr.get("time", time_of(i, len(frames))))
+        except (TypeError, ValueError) as exc:
+            raise DatasetError(f"{where}: invalid time ({exc})") from None
         if not math.isfinite(t):
             raise DatasetError(f"{where}: time is not finite")
-        views.append(View(rgb, alpha, cam, t, view_id=i, frame_id=i, name=str(path)))
-    sizes = {v.size for v in views}
-    if len(sizes) > 1:
-        raise DatasetError(f"{root}: images of different sizes in split {split}: {sorted(sizes)[:3]}")
+        out.append(TransformsFrame(str(fr["file_path"]), image, cam, t, size is not None))
+    return out, meta
+
+
+def _dnerf_split(root: Path, split: str) -> tuple[list[View], dict]:
+    """The views (images read) of ``transforms_<split>.json`` and the JSON itself."""
+    frames, meta = read_transforms(root / f"transforms_{split}.json")
+    views = []
+    for i, fr in enumerate(frames):
+        rgb, alpha = read_image(fr.image)
+        h, w = rgb.shape[:2]
+        cw, ch = fr.camera.width, fr.camera.height
+        if (w, h) != (cw, ch):
+            raise DatasetError(f"{fr.image}: image is {w}x{h} but the JSON says {cw}x{ch}" if fr.size_declared else
+                               f"{root}: images of different sizes in split {split}: {sorted({(w, h), (cw, ch)})}")
+        views.append(View(rgb, alpha, fr.camera, fr.time, view_id=i, frame_id=i, name=str(fr.image)))
     return views, meta
 
 

@@ -66,9 +66,10 @@ import torch
 
 from splatreel import __version__
 from splatreel.cameras import Camera, look_at_c2w, orbit
+from splatreel.datasets.dnerf import clean_number
 from splatreel.model import Gaussians4D, static_gaussians4d
 
-from .dataset import GENERATOR_VERSION, View, _clean, write_layout
+from .dataset import GENERATOR_VERSION, View, write_layout
 from .gaussians import DISC_THICKNESS, motion_model
 from .geometry import Mesh, axis_angle_matrix, grid_faces, mix, points_on_surface, smoothstep, sphere_topology
 from .objects import SampleConfigError, SampleObject, Spinner, _clamp_time
@@ -526,14 +527,14 @@ def sample_json(scene: FloorScene, config: FloorConfig, renderer: MeshRenderer, 
                 test: list[View]) -> dict:
     """Provenance record written as ``sample.json`` (no timestamps: the dataset is byte-for-byte reproducible)."""
     rig = rig_cameras(config)
-    cameras = [{"index": k, "kind": "top" if k == TOP_CAMERA else "side", "elevation": _clean(el),
-                "azimuth": _clean(az), "position": [_clean(x) for x in cam.position]}
+    cameras = [{"index": k, "kind": "top" if k == TOP_CAMERA else "side", "elevation": clean_number(el),
+                "azimuth": clean_number(az), "position": [clean_number(x) for x in cam.position]}
                for k, (el, az, cam) in enumerate(rig)]
     return {
         "generator": "splatreel sample", "generator_version": GENERATOR_VERSION, "splatreel_version": __version__,
         "name": scene.name, "description": scene.description, "scene": scene.params(),
         "render": {**asdict(config), "supersample": renderer.supersample, "msaa": renderer.msaa,
-                   "light_dir": [_clean(x) for x in LIGHT_DIR], "ambient": AMBIENT, "diffuse": DIFFUSE,
+                   "light_dir": [clean_number(x) for x in LIGHT_DIR], "ambient": AMBIENT, "diffuse": DIFFUSE,
                    "far_clip": FAR_CLIP, "background": "transparent (straight alpha)"},
         "alpha": ("coverage of surfaces nearer than the far clip (camera-space depth along the viewing axis, the GL "
                   "far plane), NOT an object mask: the top camera's floor lies beyond the clip (alpha 0) while "

@@ -6,9 +6,12 @@ RGBA images are composited on white, the layout's convention (D-NeRF's ``configs
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Protocol, Sequence
 
 import numpy as np
 
@@ -149,3 +152,38 @@ def read_dnerf(root: Path, **_) -> Dataset:
         bg, why = (1.0, 1.0, 1.0), "the D-NeRF layout's convention (D-NeRF and 4DGaussians composite on white)"
     return Dataset(train, test, "dnerf", root, background=bg, background_reason=why, up="z",
                    meta={"test_split": test_split})
+
+
+# --- writing ---------------------------------------------------------------------------------------------------
+class TransformsEntry(Protocol):
+    """What `transforms_for` needs of a view: its ``file_path`` (no extension), time and camera."""
+
+    file_path: str
+    time: float
+    camera: Camera
+
+
+def clean_number(x: float) -> float:
+    """Round away float noise so the JSON is short and stable (-0.0 becomes 0.0)."""
+    return round(float(x), 10) + 0.0
+
+
+def transforms_for(views: Sequence[TransformsEntry], intrinsics: Camera) -> dict:
+    """The ``transforms_<split>.json`` content for `views` (anything with ``file_path``, ``time`` and ``camera``),
+    whose cameras all share the intrinsics and image size of the camera `intrinsics` (written once at the top
+    level; the split may be empty). `read_transforms` reads it back."""
+    cam = intrinsics
+    frames = [{"file_path": v.file_path, "time": clean_number(v.time),
+               "transform_matrix": [[clean_number(x) for x in row] for row in v.camera.to_opengl_c2w()],
+               "w": cam.width, "h": cam.height} for v in views]
+    intrinsics = {"camera_angle_x": cam.fov_x, "fl_x": cam.fx, "fl_y": cam.fy, "cx": cam.cx, "cy": cam.cy}
+    return {**{k: clean_number(x) for k, x in intrinsics.items()}, "w": cam.width, "h": cam.height,
+            "frames": frames}
+
+
+def write_transforms(path: Path, data: dict) -> None:
+    """Write a transforms (or any) JSON, with each list of numbers (a matrix row) on one line."""
+    text = json.dumps(data, indent=2)
+    # Keep lists of numbers (matrix rows) on one line.
+    text = re.sub(r"\[\s+([-+0-9.eE,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
+    path.write_text(text + "\n")

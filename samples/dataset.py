@@ -90,8 +90,8 @@ class DatasetConfig:
 
 
 @dataclass(frozen=True)
-class View:
-    """One image of a dataset: where it goes, when and from where it is seen."""
+class SampleView:
+    """One image a sample dataset will hold (before it is rendered): where it goes, when and from where it is seen."""
 
     split: str
     index: int
@@ -116,17 +116,17 @@ def _camera(config: DatasetConfig, elevation: float, azimuth: float) -> Camera:
                  up="z")
 
 
-def train_views(config: DatasetConfig) -> list[View]:
+def train_views(config: DatasetConfig) -> list[SampleView]:
     """The training image matrix, ordered by time then azimuth."""
     out = []
     for f, t in enumerate(train_times(config.frames)):
         for v in range(config.views):
             az = 360.0 * v / config.views
-            out.append(View("train", len(out), t, az, config.elevation, _camera(config, config.elevation, az)))
+            out.append(SampleView("train", len(out), t, az, config.elevation, _camera(config, config.elevation, az)))
     return out
 
 
-def test_views(config: DatasetConfig) -> list[View]:
+def test_views(config: DatasetConfig) -> list[SampleView]:
     """Novel views at novel times (see module doc), ordered by time."""
     n, steps = config.test_views, config.frames - 1
     step = 360.0 / config.views
@@ -138,11 +138,11 @@ def test_views(config: DatasetConfig) -> list[View]:
             t = (math.floor((i - 1) * steps / max(n - 1, 1)) + 0.5) / steps
         az = step * (math.floor(i * config.views / n) + 0.5)
         el = float(np.clip(config.elevation + TEST_ELEVATION_OFFSETS[i % 2], -89.0, 89.0))
-        out.append(View("test", i, t, az, el, _camera(config, el, az)))
+        out.append(SampleView("test", i, t, az, el, _camera(config, el, az)))
     return out
 
 
-def transforms_json(views: list[View], config: DatasetConfig) -> dict:
+def transforms_json(views: list[SampleView], config: DatasetConfig) -> dict:
     """The ``transforms_<split>.json`` content for `views`."""
     return transforms_for(views, _camera(config, config.elevation, 0.0))
 
@@ -164,8 +164,8 @@ def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer
     }
 
 
-def render_views(obj: SampleObject, views: list[View], renderer: MeshRenderer,
-                 far: float = FAR) -> Iterator[tuple[View, np.ndarray]]:
+def render_views(obj: SampleObject, views: list[SampleView], renderer: MeshRenderer,
+                 far: float = FAR) -> Iterator[tuple[SampleView, np.ndarray]]:
     """Yield (view, RGBA image) in the order of `views`, evaluating the mesh once per run of equal times; `far` is
     the far clip of every image (see `MeshRenderer.draw`)."""
     current = None
@@ -209,7 +209,7 @@ def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | Non
                         progress=progress, renderer=renderer)
 
 
-def write_layout(out: str | os.PathLike, obj: SampleObject, train: list[View], test: list[View],
+def write_layout(out: str | os.PathLike, obj: SampleObject, train: list[SampleView], test: list[SampleView],
                  intrinsics: Camera, info: Callable[[MeshRenderer], dict], far: float = FAR, force: bool = False,
                  progress: bool = False, renderer: MeshRenderer | None = None) -> Path:
     """Render the `train` and `test` views of `obj` and write them to `out` in the D-NeRF layout, atomically.

@@ -10,13 +10,13 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-from splatreel.datasets import LAYOUTS, Dataset, View, detect_layout, read_dataset
+from splatreel.datasets import LAYOUTS, Dataset, DatasetImage, detect_layout, read_dataset
 from splatreel.errors import DatasetError
 
-__all__ = ["LAYOUTS", "Dataset", "View", "detect_layout", "downscale_view", "load_dataset", "relative_name"]
+__all__ = ["LAYOUTS", "Dataset", "DatasetImage", "detect_layout", "downscale_view", "load_dataset", "relative_name"]
 
 
-def downscale_view(view: View, factor: int) -> View:
+def downscale_view(view: DatasetImage, factor: int) -> DatasetImage:
     """The view at 1/factor resolution (area filter; the intrinsics follow)."""
     import cv2
 

@@ -1,7 +1,8 @@
 """Multi-view video datasets: the layouts splatreel trains on, one reading module each, read into one in-memory form.
 
-Every layout becomes a `Dataset` of `View`s (an image, its optional alpha mask, a `splatreel.cameras.Camera`, a time
-and the view / frame indices). Layouts, auto-detected by `detect_layout` (see README "Training data"):
+Every layout becomes a `Dataset` of `DatasetImage`s (an image, its optional alpha mask, a
+`splatreel.cameras.Camera`, a time and the view / frame indices). Layouts, auto-detected by `detect_layout` (see
+README "Training data"):
 
 * ``dnerf`` (`splatreel.datasets.dnerf`): ``transforms_{train,test,val}.json`` + images.
 * ``orbit`` (`splatreel.datasets.orbit`): an orbit image matrix ``views/<v>/<f>.png`` + ``cameras.json``.
@@ -20,14 +21,15 @@ from typing import Callable
 
 from splatreel.errors import DatasetError
 
-from .base import WHITE_THRESHOLD, Dataset, View, json_background, mask_from_white, numeric_files, read_image
+from .base import (WHITE_THRESHOLD, Dataset, DatasetImage, json_background, mask_from_white, numeric_files,
+                   read_image)
 from .dnerf import read_dnerf
 from .efficient4d import read_efficient4d
 from .orbit import read_orbit
 from .sv4d import read_sv4d
 
-__all__ = ["LAYOUTS", "READERS", "WHITE_THRESHOLD", "Dataset", "DatasetError", "View", "detect_layout",
-           "json_background", "mask_from_white", "read_dataset", "read_image"]
+__all__ = ["LAYOUTS", "READERS", "WHITE_THRESHOLD", "Dataset", "DatasetError", "DatasetImage",
+           "detect_layout", "json_background", "mask_from_white", "read_dataset", "read_image"]
 
 READERS: dict[str, Callable[..., Dataset]] = {
     "dnerf": read_dnerf, "orbit": read_orbit, "efficient4d": read_efficient4d, "sv4d": read_sv4d}

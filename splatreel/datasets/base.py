@@ -1,5 +1,5 @@
-"""What every dataset layout reads into: `View`s (an image, its mask, a camera, a time) gathered in a `Dataset`, and
-the image, JSON and background helpers the layout readers share.
+"""What every dataset layout reads into: `DatasetImage`s (an image, its mask, a camera, a time) gathered in a
+`Dataset`, and the image, JSON and background helpers the layout readers share.
 
 Images are kept as uint8 (RGB ``[H, W, 3]``, alpha ``[H, W]`` or None); the trainer converts them per batch.
 """
@@ -23,8 +23,8 @@ WHITE_THRESHOLD = 250
 
 
 @dataclass(frozen=True)
-class View:
-    """One training or test image."""
+class DatasetImage:
+    """One training or test image of a dataset: its pixels, its camera and its time (what the trainer fits)."""
 
     image: np.ndarray  # [H, W, 3] uint8 RGB
     alpha: np.ndarray | None  # [H, W] uint8, or None when the data has no mask
@@ -43,8 +43,8 @@ class View:
 class Dataset:
     """A multi-view video: training views, test views (may be empty), and what the layout says about them."""
 
-    train: list[View]
-    test: list[View]
+    train: list[DatasetImage]
+    test: list[DatasetImage]
     layout: str
     root: Path
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)

@@ -18,7 +18,7 @@ import numpy as np
 from splatreel.cameras import Camera, nerf_frame_camera
 from splatreel.errors import CameraError, DatasetError
 
-from .base import Dataset, View, json_background, load_json, read_image, time_of
+from .base import Dataset, DatasetImage, json_background, load_json, read_image, time_of
 
 #: The image size when neither the JSON (``w``, ``h``) nor an image gives one: D-NeRF's Blender renders are
 #: 800 x 800 (its ``load_blender.py`` reads them at ``H, W = imgs[0].shape[:2]``).
@@ -110,7 +110,7 @@ def read_transforms(path: Path) -> tuple[list[TransformsFrame], dict]:
     return out, meta
 
 
-def _dnerf_split(root: Path, split: str) -> tuple[list[View], dict]:
+def _dnerf_split(root: Path, split: str) -> tuple[list[DatasetImage], dict]:
     """The views (images read) of ``transforms_<split>.json`` and the JSON itself."""
     frames, meta = read_transforms(root / f"transforms_{split}.json")
     views = []
@@ -121,11 +121,11 @@ def _dnerf_split(root: Path, split: str) -> tuple[list[View], dict]:
         if (w, h) != (cw, ch):
             raise DatasetError(f"{fr.image}: image is {w}x{h} but the JSON says {cw}x{ch}" if fr.size_declared else
                                f"{root}: images of different sizes in split {split}: {sorted({(w, h), (cw, ch)})}")
-        views.append(View(rgb, alpha, fr.camera, fr.time, view_id=i, frame_id=i, name=str(fr.image)))
+        views.append(DatasetImage(rgb, alpha, fr.camera, fr.time, view_id=i, frame_id=i, name=str(fr.image)))
     return views, meta
 
 
-def _group_ids(views: list[View]) -> list[View]:
+def _group_ids(views: list[DatasetImage]) -> list[DatasetImage]:
     """Give D-NeRF views frame ids by time and view ids by camera pose (poses equal to 1e-6 share an id)."""
     times = sorted({round(v.time, 9) for v in views})
     poses: list[np.ndarray] = []

@@ -12,7 +12,7 @@ import numpy as np
 from splatreel.cameras import orbit
 from splatreel.errors import DatasetError
 
-from .base import Dataset, View, check_frames, mask_from_white, numeric_files, read_image, time_of
+from .base import Dataset, DatasetImage, check_frames, mask_from_white, numeric_files, read_image, time_of
 
 # --- Efficient4D stage 1 --------------------------------------------------------------------------------------
 #: SyncDreamer's cameras (shared notes 4dgs-core §5.3): 16 views, elevation 30 deg, azimuth 22.5 v, distance
@@ -33,7 +33,7 @@ def read_efficient4d(root: Path, views: int = E4D_VIEWS, **_) -> Dataset:
             tile = np.ascontiguousarray(rgb[:, v * h:(v + 1) * h])
             a = None if alpha is None else np.ascontiguousarray(alpha[:, v * h:(v + 1) * h])
             cam = orbit(E4D_ELEVATION, 22.5 * v * 16 / views, E4D_RADIUS, E4D_FOV, h, h, up="z")
-            out.append(View(tile, a if a is not None else mask_from_white(tile), cam, time_of(f, n), v, f,
+            out.append(DatasetImage(tile, a if a is not None else mask_from_white(tile), cam, time_of(f, n), v, f,
                             f"{path}[view {v}]"))
     ref = root / "ref"
     if ref.is_dir():
@@ -47,7 +47,7 @@ def read_efficient4d(root: Path, views: int = E4D_VIEWS, **_) -> Dataset:
             if alpha is not None:  # RGBA reference frames: composite on white like the generated strips
                 a = alpha[..., None].astype(np.float32) / 255
                 rgb = (rgb * a + 255 * (1 - a) + 0.5).astype(np.uint8)
-            out.append(View(rgb, alpha if alpha is not None else mask_from_white(rgb), cam, time_of(f, n),
+            out.append(DatasetImage(rgb, alpha if alpha is not None else mask_from_white(rgb), cam, time_of(f, n),
                             views, f, str(path)))
     return Dataset(out, [], "efficient4d", root, background=(1.0, 1.0, 1.0),
                    background_reason="Efficient4D's views are generated on white", up="z",

@@ -9,12 +9,12 @@ from pathlib import Path
 from splatreel.cameras import orbit
 from splatreel.errors import CameraError, DatasetError
 
-from .base import (Dataset, View, check_frames, json_background, load_json, mask_from_white, numeric_files,
+from .base import (Dataset, DatasetImage, check_frames, json_background, load_json, mask_from_white, numeric_files,
                    read_image, time_of)
 
 # --- generic orbit image matrix -------------------------------------------------------------------------------
 
-def _orbit_views(root: Path, folder: str, specs: list, meta: dict, times: list[float] | None) -> list[View]:
+def _orbit_views(root: Path, folder: str, specs: list, meta: dict, times: list[float] | None) -> list[DatasetImage]:
     views = []
     up = meta.get("up", "z")
     for v, spec in enumerate(specs):
@@ -39,7 +39,7 @@ def _orbit_views(root: Path, folder: str, specs: list, meta: dict, times: list[f
             except CameraError as exc:
                 raise DatasetError(f"{root / 'cameras.json'}: view {v}: {exc}") from None
             t = times[f] if times is not None else time_of(f, n)
-            views.append(View(rgb, alpha, cam, float(t), v, f, str(path)))
+            views.append(DatasetImage(rgb, alpha, cam, float(t), v, f, str(path)))
     per_view: dict[int, int] = {}
     for x in views:
         per_view[x.view_id] = per_view.get(x.view_id, 0) + 1

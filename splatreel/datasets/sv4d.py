@@ -10,7 +10,7 @@ import numpy as np
 from splatreel.cameras import orbit
 from splatreel.errors import DatasetError
 
-from .base import Dataset, View, mask_from_white, time_of
+from .base import Dataset, DatasetImage, mask_from_white, time_of
 
 # --- SV4D ----------------------------------------------------------------------------------------------------
 #: Azimuths (degrees, relative to the input view) of SV4D's 9 output views and SV4D 2.0's 4- and 8-view models
@@ -63,7 +63,7 @@ def read_sv4d(root: Path, variant: str | None = None, elevation: float | None = 
         for f, rgb in enumerate(frames):
             h, w = rgb.shape[:2]
             cam = orbit(elev, azimuths[v], SV4D_RADIUS, SV4D_FOV, w, h, up="y")
-            out.append(View(rgb, mask_from_white(rgb), cam, time_of(f, n), v, f, f"{path}[{f}]"))
+            out.append(DatasetImage(rgb, mask_from_white(rgb), cam, time_of(f, n), v, f, f"{path}[{f}]"))
     return Dataset(out, [], "sv4d", root, background=(1.0, 1.0, 1.0),
                    background_reason="SV4D's views are generated on white", up="y",
                    meta={"variant": variant, "elevation": elev, "prefix": prefix})

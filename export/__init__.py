@@ -1,7 +1,7 @@
 """Exporters: OpenUSD, per-frame meshes, per-frame 3DGS PLY.
 
-Every exporter takes any model (`Gaussians4D`, `KeyframedGaussians`, whatever `splatreel.formats.load_model` returns)
-and only calls ``model.slice(t)`` at the frame times from `frame_times`. Importing this package registers the
+Every exporter takes any model (`Gaussians4D`, `KeyframedGaussians`, whatever `splatreel.formats.read_checkpoint`
+returns) and only calls ``model.slice(t)`` at the frame times from `frame_times`. Importing this package registers the
 built-in formats; `exporters()` lists them (the ``splatreel export`` choices come from it).
 """
 

@@ -1,6 +1,6 @@
 """Readers for every model file splatreel accepts, chosen by content (not only by extension).
 
-`load_model` is what every command that takes a checkpoint calls (``info``, ``view``, ``render``, ``export``).
+`read_checkpoint` is what every command that takes a checkpoint calls (``info``, ``view``, ``render``, ``export``).
 The splatreel checkpoint is built in; importers of other tools' files register themselves with `register_reader`.
 """
 
@@ -58,8 +58,9 @@ register_reader(Reader("splatreel", "splatreel checkpoint (.safetensors)", _is_s
                        lambda path, **_: load_checkpoint(path)))
 
 
-def load_model(path: str | os.PathLike, **options: Any) -> Checkpoint:
-    """Load any supported model file; raises `CheckpointError` naming the file when none can read it."""
+def read_checkpoint(path: str | os.PathLike, **options: Any) -> Checkpoint:
+    """Read any supported model file as a `Checkpoint`; raises `CheckpointError` naming the file when none can
+    read it. (`splatreel.checkpoint.load_checkpoint` reads only splatreel's own safetensors files.)"""
     import glob
 
     _register_importers()
@@ -71,3 +72,7 @@ def load_model(path: str | os.PathLike, **options: Any) -> Checkpoint:
             return r.read(path, **options)
     known = "; ".join(r.description for r in _READERS)
     raise CheckpointError(f"{path}: unknown model format (supported: {known})")
+
+
+#: The former name of `read_checkpoint`, kept until `splatreel.cli` and `splatreel/__init__.py` call the new one.
+load_model = read_checkpoint

@@ -1,6 +1,6 @@
 """Importers: other tools' 4D / 3D Gaussian files as splatreel models.
 
-Every command that takes a model calls `splatreel.formats.load_model(path, **options)`; the readers below are
+Every command that takes a model calls `splatreel.formats.read_checkpoint(path, **options)`; the readers below are
 registered there the first time it runs, and are chosen by content:
 
 =====================  ===========================================================  =============================
@@ -15,7 +15,7 @@ reader                 accepts                                                  
 =====================  ===========================================================  =============================
 
 Command-line tools add the import options with `add_import_args(parser)` and pass `import_options(args)` to
-`load_model`. What an importer assumed is printed (one line, stderr) and stored in ``provenance["assumed"]``.
+`read_checkpoint`. What an importer assumed is printed (one line, stderr) and stored in ``provenance["assumed"]``.
 Pickles are loaded without executing code (`safe_load.safe_torch_load`).
 """
 

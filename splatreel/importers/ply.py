@@ -70,6 +70,11 @@ def is_ply(path: Path) -> bool:
         return False
 
 
+def sniff_ply(path: Path) -> bool:
+    """One PLY file (the ``ply`` reader of `splatreel.formats`)."""
+    return path.is_file() and is_ply(path)
+
+
 def read_ply_header(path: Path, data: bytes) -> PlyHeader:
     """Parse the header at the start of `data` (the file's bytes); CheckpointError naming `path` if malformed."""
     end = data.find(b"end_header", 0, _MAX_HEADER)

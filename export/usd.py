@@ -17,11 +17,12 @@ Every per-particle attribute is authored at every time code, with the same N and
 Gaussian: positions lerp (exact for native 4D Gaussians, which move linearly), orientations slerp, opacities and SH
 lerp (a piecewise-linear approximation of the temporal Gaussian and of the cosine colour terms).
 
-Splats (schema facts in shared notes ``export.md`` §1): positions, orientations (quatf), scales (linear std-devs),
-opacities (linear), ``radiance:sphericalHarmonicsCoefficients`` (raw 3DGS coefficients, per particle K = (d+1)^2
-RGB triplets in 3DGS order; ``elementSize = K``), uniform ``radiance:sphericalHarmonicsDegree`` (always
-authored), a DC ``primvars:displayColor`` fallback, and an extent per sample covering the 3-sigma ellipsoid of every
-Gaussian visible at that sample or a neighbouring one (so interpolated times are covered too).
+Splats (OpenUSD's ``UsdVol.ParticleField3DGaussianSplat`` schema, OpenUSD >= 26.03, ``pxr/usd/usdVol/schema.usda``):
+positions, orientations (quatf), scales (linear std-devs), opacities (linear),
+``radiance:sphericalHarmonicsCoefficients`` (raw 3DGS coefficients, per particle K = (d+1)^2 RGB triplets in 3DGS order;
+``elementSize = K``), uniform ``radiance:sphericalHarmonicsDegree`` (always authored), a DC ``primvars:displayColor``
+fallback, and an extent per sample covering the 3-sigma ellipsoid of every Gaussian visible at that sample or a
+neighbouring one (so interpolated times are covered too).
 
 Instancer: one unit-sphere prototype; per instance positions, ``orientations`` (quath, read by Blender) and
 ``orientationsf`` (quatf, preferred by USD >= 26.11), ``scales = instance_sigmas * std-devs`` (the sphere becomes the

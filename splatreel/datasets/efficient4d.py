@@ -15,7 +15,8 @@ from splatreel.errors import DatasetError
 from .base import Dataset, DatasetImage, check_frames, mask_from_white, numeric_files, read_image, time_of
 
 # --- Efficient4D stage 1 --------------------------------------------------------------------------------------
-#: SyncDreamer's cameras (shared notes 4dgs-core §5.3): 16 views, elevation 30 deg, azimuth 22.5 v, distance
+#: SyncDreamer's cameras (Liu et al. 2024, SyncDreamer; liuyuan-pal/SyncDreamer ``meta_info/camera-16.pkl``, which
+#: fudan-zvg/Efficient4D ships too): 16 views, elevation 30 deg, azimuth 22.5 v, distance
 #: 1.5, fx = 280 at 256 px, z-up world; the input view is azimuth 0 at elevation 0.
 E4D_VIEWS, E4D_ELEVATION, E4D_RADIUS, E4D_FOV = 16, 30.0, 1.5, math.degrees(2 * math.atan(128 / 280))
 

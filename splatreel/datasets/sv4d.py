@@ -14,7 +14,8 @@ from .base import Dataset, DatasetImage, mask_from_white, time_of
 
 # --- SV4D ----------------------------------------------------------------------------------------------------
 #: Azimuths (degrees, relative to the input view) of SV4D's 9 output views and SV4D 2.0's 4- and 8-view models
-#: (shared notes formats.md C.2-C.3); view 0 is the input video.
+#: (Xie et al. 2024, SV4D; Stability-AI/generative-models ``scripts/sampling/simple_video_sample_4d.py`` and
+#: ``simple_video_sample_4d2.py``); view 0 is the input video.
 SV4D_AZIMUTHS = {
     "sv4d": [0.0, 34.29, 85.71, 120.0, 154.29, 205.71, 240.0, 274.29, 325.71],
     "sv4d2": [0.0, 60.0, 120.0, 180.0, 240.0],

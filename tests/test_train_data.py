@@ -118,6 +118,28 @@ def test_trainer_and_viewer_read_the_same_dnerf_cameras(tmp_path, sizes_in_json)
                 (t.camera.fx, t.camera.fy, t.camera.cx, t.camera.cy)
             assert v.time == t.time and t.name.endswith(v.name.lstrip("./") + ".png")
 
+
+def test_dnerf_writer_and_reader_round_trip(tmp_path):
+    """`transforms_for` + `write_transforms` (what `splatreel sample` writes) read back by `read_transforms`: the
+    same poses, intrinsics, sizes and times, and the image path with the .png the JSON leaves out."""
+    from types import SimpleNamespace
+
+    from splatreel.cameras import orbit
+    from splatreel.datasets.dnerf import read_transforms, transforms_for, write_transforms
+
+    cams = [orbit(20, a, 2.5, fov_deg=40, width=64, height=48, up="z") for a in (0, 90, 200)]
+    views = [SimpleNamespace(file_path=f"./train/r_{i:03d}", time=t, camera=c)
+             for i, (c, t) in enumerate(zip(cams, (0.0, 0.5, 1.0)))]
+    write_transforms(tmp_path / "transforms_train.json", transforms_for(views, cams[0]))
+    frames, _ = read_transforms(tmp_path / "transforms_train.json")
+    assert [f.time for f in frames] == [0.0, 0.5, 1.0] and all(f.size_declared for f in frames)
+    for f, v in zip(frames, views):
+        assert f.image == (tmp_path / "train" / f"{v.file_path[8:]}.png").resolve()
+        np.testing.assert_allclose(f.camera.c2w, v.camera.c2w, atol=1e-9)
+        assert (f.camera.width, f.camera.height) == (64, 48)
+        np.testing.assert_allclose([f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy],
+                                   [v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy], rtol=1e-9)
+
 @pytest.mark.parametrize("declared, expected", [([0, 0, 0], (0.0, 0.0, 0.0)), ("black", (0.0, 0.0, 0.0)),
                                                 ([0.5, 0.25, 1], (0.5, 0.25, 1.0)), ("White", (1.0, 1.0, 1.0))])
 def test_dnerf_background_from_json_and_override(tmp_path, declared, expected):

@@ -14,7 +14,8 @@ import pytest
 
 from splatreel.cli import main
 from splatreel.errors import DatasetError
-from splatreel.train.data import detect_layout, load_dataset
+from splatreel.datasets import detect_layout
+from splatreel.train.data import load_dataset
 
 P_ZUP = np.array([0.3, -0.2, 0.25])
 P_YUP = np.array([0.25, 0.3, -0.2])

@@ -29,7 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import Dataset, DatasetImage, relative_name
+from splatreel.datasets import Dataset, DatasetImage
+
+from .data import relative_name
 
 #: Longer image side the masks are reduced to for the test.
 WORK_SIZE = 128

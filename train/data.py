@@ -10,10 +10,10 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-from splatreel.datasets import LAYOUTS, Dataset, DatasetImage, detect_layout, read_dataset
+from splatreel.datasets import Dataset, DatasetImage, read_dataset
 from splatreel.errors import DatasetError
 
-__all__ = ["LAYOUTS", "Dataset", "DatasetImage", "detect_layout", "downscale_view", "load_dataset", "relative_name"]
+__all__ = ["downscale_view", "load_dataset", "relative_name"]
 
 
 def downscale_view(view: DatasetImage, factor: int) -> DatasetImage:

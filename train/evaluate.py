@@ -7,9 +7,9 @@ import time
 import numpy as np
 import torch
 
+from splatreel.datasets import DatasetImage
 from splatreel.model import Model
 
-from .data import DatasetImage
 from .losses import psnr, ssim
 from .rasterize import rasterize
 

@@ -8,9 +8,8 @@ import numpy as np
 import torch
 
 from splatreel import sh
+from splatreel.datasets import Dataset
 from splatreel.errors import SplatreelError
-
-from .data import Dataset
 
 
 def look_at_centre(ds: Dataset) -> np.ndarray:

@@ -20,6 +20,7 @@ from splatreel.cameras import DatasetView
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
 from splatreel.constants import TEMPORAL_CULL
 from splatreel.covariance import condition_on_time, temporal_marginal
+from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
 from splatreel.fileio import atomic_path
 from splatreel.model import Gaussians4D
@@ -28,7 +29,7 @@ from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import TrainConfig
 from .confidence import confidence_maps
-from .data import Dataset, DatasetImage, downscale_view, relative_name
+from .data import downscale_view, relative_name
 from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball)

@@ -20,8 +20,10 @@ from dataclasses import dataclass
 from typing import Iterable, Iterator, Sequence
 
 import numpy as np
+
 import torch
 
+from splatreel.colorspace import srgb_to_linear  # noqa: F401  (re-exported for the exporters)
 from splatreel.constants import RADIUS_SIGMAS
 from splatreel.covariance import decompose_covariance_3d
 from splatreel.errors import ModelError, SplatreelError
@@ -198,12 +200,21 @@ def box_of(centres: np.ndarray, half: np.ndarray, mask: np.ndarray | None = None
     return np.stack([(centres - half).min(0), (centres + half).max(0)]).astype(np.float32)
 
 
-# --- colour --------------------------------------------------------------------------------------------------
+#: Formats whose readers take +Y as up whatever a file says: glTF 2.0 (its spec: "+Y is up") and OBJ (no up axis
+#: of its own; Blender's and most DCC importers assume +Y)
+Y_UP_FORMATS = ("glb", "gltf", "obj")
 
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding of values in [0, 1] (same shape)."""
-    c = np.clip(c, 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+def to_y_up(vectors: np.ndarray, up_axis: str) -> np.ndarray:
+    """``[..., 3]`` points or directions of a model whose up axis is `up_axis` ("Y" or "Z") in +Y-up coordinates.
+
+    Z up: ``(x, y, z) -> (x, z, -y)``, a -90 degree turn about X (right-handed stays right-handed; the model's
+    front, -Y in a Z-up scene, becomes +Z), the conversion Blender's glTF exporter makes.
+    """
+    if str(up_axis).upper() == "Y":
+        return vectors
+    v = np.asarray(vectors)
+    return np.stack([v[..., 0], v[..., 2], -v[..., 1]], -1)
 
 
 def resolve_up_axis(explicit: str | None, provenance: dict | None) -> str:

@@ -21,6 +21,8 @@ Output folder: ``mesh_%06d.{obj,ply,glb}`` per frame, ``mesh_sequence.usd`` (a `
 with time-sampled points, topology, vertex normals, vertex displayColor and extent; frame i = time code i, the
 stage metadata of `splatreel.export.usd`) and ``manifest.json``. Colour spaces: PLY/OBJ hold 8-bit (PLY) or float
 (OBJ) sRGB-encoded colour; GLB ``COLOR_0`` and USD displayColor hold linear colour (their specs say linear).
+Axes: PLY and the USD keep the model's (the stage declares its up axis); GLB and OBJ are turned +Y up (glTF's
+definition, and what OBJ importers assume), recorded as ``mesh_up_axis`` in the manifest.
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ import torch
 from splatreel.covariance import covariance_3d
 from splatreel.fileio import atomic_dir
 
-from .base import (ExportError, SplatFrame, box_of, frame_file_name, iter_frames, manifest, resolve_up_axis,
-                   srgb_to_linear)
+from .base import (Y_UP_FORMATS, ExportError, SplatFrame, box_of, frame_file_name, iter_frames, manifest,
+                   resolve_up_axis, srgb_to_linear, to_y_up)
 
 MESH_FORMATS: tuple[str, ...] = ("obj", "ply", "glb")
 #: Gaussians are truncated outside this Mahalanobis distance (their 3-sigma ellipsoid).
@@ -264,12 +266,18 @@ def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors:
     return FrameMesh(vertices, faces, normals, colors)
 
 
-def mesh_bytes(mesh: FrameMesh, fmt: str) -> bytes:
+def mesh_bytes(mesh: FrameMesh, fmt: str, up_axis: str = "Y") -> bytes:
     """The file bytes of `mesh` as ``obj`` (``v x y z r g b`` colours), ``ply`` (binary, uchar RGBA, normals) or
-    ``glb`` (linear ``COLOR_0``, normals)."""
+    ``glb`` (linear ``COLOR_0``, normals). OBJ and GLB are written +Y up (`to_y_up` from the model's `up_axis`),
+    PLY in the model's own axes."""
+    from dataclasses import replace
+
     from trimesh.exchange.gltf import export_glb
     from trimesh.exchange.obj import export_obj
     from trimesh.exchange.ply import export_ply
+
+    if fmt in Y_UP_FORMATS:
+        mesh = replace(mesh, vertices=to_y_up(mesh.vertices, up_axis), normals=to_y_up(mesh.normals, up_axis))
 
     if fmt == "ply":
         return export_ply(mesh.trimesh(), encoding="binary", vertex_normal=True)
@@ -336,7 +344,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
         for frame in iter_frames(model, times, progress, desc="mesh"):
             mesh = frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill)
             names.append(frame_file_name("mesh", frame.index, options.format))
-            (tmp / names[-1]).write_bytes(mesh_bytes(mesh, options.format))
+            (tmp / names[-1]).write_bytes(mesh_bytes(mesh, options.format, options.up_axis))
             if usd is not None:
                 usd.add(frame.index, mesh)
         extra = []
@@ -351,6 +359,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             dilation_voxels=DILATION_VOXELS,
             grid={"origin": grid.origin.tolist(), "voxel": grid.voxel, "shape": list(grid.shape)},
             up_axis=options.up_axis, meters_per_unit=options.meters_per_unit,
+            mesh_up_axis="Y" if options.format in Y_UP_FORMATS else options.up_axis,
             vertex_colors="linear" if options.format == "glb" else "srgb", usd=extra[0] if extra else None))
     return [outdir / n for n in names + extra + ["manifest.json"]]
 

@@ -36,6 +36,12 @@ Colour: displayColor is the DC colour decoded from sRGB to linear (USD treats di
 raw 3DGS coefficients, whose evaluation (+0.5) gives sRGB-encoded colour as in every 3DGS tool. When splats are
 written together with a fallback, the fallbacks get ``purpose = "proxy"`` and the splats ``proxyPrim`` -> the
 instancer (or points), the USD way to pair a heavy prim with a light stand-in.
+
+Readers that predate the splat schema: the splat prim also carries the attributes of a ``Points`` prim, and the
+stage's ``fallbackPrimTypes`` metadata names ``Points`` as its fallback type (an OpenUSD mechanism for new schemas:
+an older reader uses the first fallback it knows). Blender 5.0 (OpenUSD 25.08) skips proxy prims at its default
+import options and knows no splat schema; through the fallback it imports the splats as an animated point cloud
+with displayColor, so the default export is never an empty scene.
 """
 
 from __future__ import annotations
@@ -65,6 +71,10 @@ ROOT = "/World"
 PRIM_PATHS = {"splats": f"{ROOT}/Splats", "instancer": f"{ROOT}/Instancer", "points": f"{ROOT}/Points"}
 PROTOTYPE_PATH = f"{PRIM_PATHS['instancer']}/Prototypes/UnitSphere"
 MATERIAL_PATH = f"{ROOT}/Looks/DisplayColor"
+#: stage metadata: readers whose OpenUSD predates the splat schema read the splat prim as this type instead
+FALLBACK_PRIM_TYPES = {"ParticleField3DGaussianSplat": ["Points"]}
+#: a .usda (text) stage above this many bytes gets a warning suggesting .usdc
+LARGE_TEXT_STAGE = 64 * 2 ** 20
 
 
 @dataclass(frozen=True)
@@ -178,7 +188,7 @@ def _display_material(stage):
                             ("displayOpacity", "float", Sdf.ValueTypeNames.Float)):
         reader = UsdShade.Shader.Define(stage, f"{MATERIAL_PATH}/{name}")
         reader.CreateIdAttr(f"UsdPrimvarReader_{kind}")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set(name)
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set(name)  # string, not token (UsdPreviewSurface spec, UsdPrimvarReader)
         out = reader.CreateOutput("result", typ)
         target = "diffuseColor" if name == "displayColor" else "opacity"
         surface.CreateInput(target, Sdf.ValueTypeNames.Color3f if target == "diffuseColor" else typ
@@ -200,13 +210,38 @@ def _set_vertex_primvar(gprim, name: str, type_name, value, time) -> None:
     _author(pv.GetAttr(), value, time)
 
 
+#: the splat prim's Points fallback: spheres out to 1 std-dev (the Gaussian's core), none for Gaussians fainter than
+#: FALLBACK_MIN_OPACITY (an opaque sphere would show a faint halo Gaussian as a solid blob)
+FALLBACK_SIGMAS = 1.0
+FALLBACK_MIN_OPACITY = 0.1
+
+
+def points_widths(frame: SplatFrame, sigmas: float, min_opacity: float = 0.0) -> np.ndarray:
+    """``[N]`` widths of the points that stand for `frame`'s Gaussians: ``2 k`` mean std-devs, 0 when invisible
+    (or fainter than `min_opacity`)."""
+    shown = frame.visible & (frame.opacities >= min_opacity)
+    return np.where(shown, 2.0 * sigmas * frame.scales.mean(1), 0.0)
+
+
 class _SplatsWriter:
-    """Authors `/World/Splats` (ParticleField3DGaussianSplat), one time sample per `write` call."""
+    """Authors `/World/Splats` (ParticleField3DGaussianSplat), one time sample per `write` call.
 
-    def __init__(self, stage, sh_degree: int):
-        from pxr import UsdVol
+    The prim also carries what a ``Points`` prim reads (``points``, ``widths``, ``velocities``, displayColor and
+    displayOpacity, the display material), and the stage names ``Points`` as the splat type's fallback
+    (``fallbackPrimTypes``, `FALLBACK_PRIM_TYPES`): an OpenUSD that predates the splat schema (Blender 5.0 bundles
+    25.08) reads the same prim as animated, coloured points instead of skipping it.
+    """
 
+    def __init__(self, stage, sh_degree: int, sigmas: float, material):
+        from pxr import UsdGeom, UsdVol
+
+        del sigmas  # the fallback's spheres are FALLBACK_SIGMAS wide, whatever the instancer's are
         self.prim = UsdVol.ParticleField3DGaussianSplat.Define(stage, PRIM_PATHS["splats"])
+        self.fallback = UsdGeom.Points(self.prim.GetPrim())
+        self.fallback_attrs = {"points": self.fallback.CreatePointsAttr(), "widths": self.fallback.CreateWidthsAttr(),
+                               "velocities": self.fallback.CreateVelocitiesAttr()}
+        self.fallback.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+        _bind(self.prim.GetPrim(), material)
         self.prim.CreateRadianceSphericalHarmonicsDegreeAttr().Set(int(sh_degree))
         self.prim.CreateProjectionModeHintAttr().Set("perspective")
         self.prim.CreateSortingModeHintAttr().Set("cameraDistance")
@@ -229,6 +264,13 @@ class _SplatsWriter:
         _author(self.sh, _vec3f(frame.sh), tc)
         _author(self.attrs["extent"], _vec3f(box_of(frame.means, frame.radii, near)), tc)
         _set_vertex_primvar(self.prim, "displayColor", Sdf.ValueTypeNames.Color3fArray, _vec3f(color), tc)
+        # the Points fallback (a crate file stores the positions array once for both attributes)
+        fa = self.fallback_attrs
+        _author(fa["points"], _vec3f(frame.means), tc)
+        _author(fa["widths"], _floats(points_widths(frame, FALLBACK_SIGMAS, FALLBACK_MIN_OPACITY)), tc)
+        _author(fa["velocities"], _vec3f(frame.velocities * velocity_scale), tc)
+        _set_vertex_primvar(self.prim, "displayOpacity", Sdf.ValueTypeNames.FloatArray, _floats(frame.opacities),
+                            tc)
 
 
 class _InstancerWriter:
@@ -292,7 +334,7 @@ class _PointsWriter:
         tc = frame.index
         full = 2.0 * self.sigmas * frame.scales.mean(1)  # [N] width when visible
         _author(self.attrs["points"], _vec3f(frame.means), tc)
-        _author(self.widths, _floats(np.where(frame.visible, full, 0.0)), tc)
+        _author(self.widths, _floats(points_widths(frame, self.sigmas)), tc)
         _author(self.attrs["velocities"], _vec3f(frame.velocities * velocity_scale), tc)
         # points visible at a neighbouring sample are interpolated towards their full width: cover that width
         _author(self.attrs["extent"], _vec3f(box_of(frame.means, 0.5 * full[:, None], near)), tc)
@@ -321,7 +363,11 @@ def build_usd_stage(model, times: Sequence[float], options: UsdOptions = UsdOpti
         raise ExportError("no frames to export")
     stage = Usd.Stage.CreateInMemory()
     configure_stage(stage, len(times), options.fps, options.up_axis, options.meters_per_unit, times)
-    material = _display_material(stage) if {"instancer", "points"} & set(options.what) else None
+    if "splats" in options.what:
+        from pxr import Vt
+
+        stage.SetMetadata("fallbackPrimTypes", {k: Vt.TokenArray(v) for k, v in FALLBACK_PRIM_TYPES.items()})
+    material = _display_material(stage)
     # velocities: model units per model time -> units per second = * (model time per time code) * (codes per s)
     velocity_scale = time_step(times) * options.fps
     writers = None
@@ -329,8 +375,8 @@ def build_usd_stage(model, times: Sequence[float], options: UsdOptions = UsdOpti
         if writers is None:
             writers = []
             for kind in options.what:
-                args = (stage, frame.sh_degree) if kind == "splats" else \
-                    (stage, len(frame), options.instance_sigmas, material)
+                args = (stage, frame.sh_degree) if kind == "splats" else (stage, len(frame))
+                args += (options.instance_sigmas, material)
                 writers.append(_WRITERS[kind](*args))
         near = live_near(prev, frame, nxt)
         color = srgb_to_linear(frame.dc_rgb())
@@ -386,7 +432,13 @@ def write_usd(model, path: str | Path, times: Sequence[float], options: UsdOptio
     if path.suffix.lower() not in USD_SUFFIXES:
         raise ExportError(f"{path}: unknown USD suffix {path.suffix or '(none)'}; use one of "
                           f"{', '.join(USD_SUFFIXES)}")
-    return save_stage(build_usd_stage(model, times, options, progress), path, force)
+    written = save_stage(build_usd_stage(model, times, options, progress), path, force)
+    if path.suffix.lower() == ".usda" and written.stat().st_size > LARGE_TEXT_STAGE:
+        import warnings
+
+        warnings.warn(f"{path} holds {written.stat().st_size / 2 ** 20:.0f} MiB of text; the same stage as .usdc "
+                      "(binary crate) is over 10x smaller and opens faster", stacklevel=2)
+    return written
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

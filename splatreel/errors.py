@@ -27,6 +27,10 @@ class OutputExistsError(SplatreelError):
     """An output already exists and `force` was not given."""
 
 
+class OutputWriteError(SplatreelError):
+    """An output cannot be written: a read-only or full disk, no permission, a file where a folder should be."""
+
+
 class CameraError(SplatreelError):
     """A camera or camera-path description is invalid."""
 

@@ -262,6 +262,24 @@ def test_usd_what_selects_prims_and_usdz_and_usda_open(ball, tmp_path):
         write_usd(ball, tmp_path / "x.abc", TIMES[:2])
 
 
+def usd_validation_errors(path) -> list[str]:
+    """Every error (not warning) that OpenUSD's own validators (UsdValidation, all registered) report on a stage."""
+    from pxr import Usd, UsdValidation
+
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    errors = UsdValidation.ValidationContext(validators).Validate(Usd.Stage.Open(str(path)))
+    return [f"{e.GetName()}: {e.GetMessage()}" for e in errors
+            if e.GetType() == UsdValidation.ValidationErrorType.Error]
+
+
+def test_every_usd_kind_validates_with_zero_errors(ball, usd_file, mesh_dir, tmp_path):
+    assert usd_validation_errors(usd_file) == []  # splats + instancer + points, with the display material
+    for what in ("splats", "instancer", "points"):
+        assert usd_validation_errors(write_usd(ball, tmp_path / f"{what}.usda", TIMES[:2],
+                                               UsdOptions(what=(what,), up_axis="Z"))) == [], what
+    assert usd_validation_errors(next(p for p in mesh_dir if p.name == "mesh_sequence.usd")) == []
+
+
 def test_usd_of_a_keyframed_model_uses_its_stored_rotations(tmp_path):
     from pxr import Usd
 
@@ -404,7 +422,7 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
     """End to end on a real trained model (samples/spinner.safetensors, 50k Gaussians): the USD splats are its
     slices, and its meshes have the sample object's known box at each time."""
     import trimesh
-    from pxr import Usd, UsdVol
+    from pxr import Usd, UsdGeom, UsdVol
 
     from splatreel.checkpoint import load_checkpoint
     from splatreel.samples import object_bounds, trained_checkpoint
@@ -414,6 +432,7 @@ def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_obje
     usd = tmp_path / "spinner.usdc"
     assert main(["export", "usd", str(ckpt), str(usd), "--frames", "3", "--what", "splats", "--quiet"]) == 0
     stage = Usd.Stage.Open(str(usd))  # keep the stage alive while its prims are read
+    assert UsdGeom.GetStageUpAxis(stage) == "Z"  # the sample is +Z up, and its checkpoint says so
     splats = UsdVol.ParticleField3DGaussianSplat(stage.GetPrimAtPath(PRIM_PATHS["splats"]))
     for tc, t in enumerate(frame_times(model.time_range, 3)):
         np.testing.assert_allclose(_np(splats.GetPositionsAttr().Get(tc)), model.slice(float(t)).means.numpy(),
@@ -459,6 +478,15 @@ def test_mesh_formats_round_trip_through_trimesh(ball, tmp_path, fmt):
     assert [p.name for p in paths] == [f"mesh_000000.{fmt}", "manifest.json"]
     m = trimesh.load(paths[0], force="mesh")
     assert m.volume > 0.2 and len(m.visual.vertex_colors) == len(m.vertices)
+    # a +Z-up model: the PLY keeps its axes, the GLB/OBJ are turned +Y up, (x, y, z) -> (x, z, -y)
+    z_up = write_mesh_sequence(ball, tmp_path / f"{fmt}-z", TIMES[:1],
+                               MeshOptions(format=fmt, resolution=24, usd=False, up_axis="Z"))
+    ply = write_mesh_sequence(ball, tmp_path / "ply-z", TIMES[:1], MeshOptions(resolution=24, usd=False, up_axis="Z"))
+    turned, native = trimesh.load(z_up[0], force="mesh", process=False), trimesh.load(ply[0], process=False)
+    want = np.stack([native.vertices[:, 0], native.vertices[:, 2], -native.vertices[:, 1]], 1)
+    np.testing.assert_allclose(turned.vertices, want, atol=1e-5)
+    assert json.loads(z_up[-1].read_text())["mesh_up_axis"] == "Y"
+    assert json.loads(ply[-1].read_text())["mesh_up_axis"] == "Z"
 
 
 def test_a_frame_below_the_iso_level_gives_an_empty_mesh_in_every_format(ball, tmp_path):
@@ -506,3 +534,30 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
     assert main(["export", "ply", str(ckpt), str(tmp_path / "none"), "--quiet", "--crop", "5", "5", "5", "6", "6",
                  "6"]) == 1
     assert "holds none" in capsys.readouterr().err
+
+
+def test_a_large_text_stage_suggests_usdc(ball, tmp_path, monkeypatch):
+    import splatreel.export.usd as usd_module
+
+    monkeypatch.setattr(usd_module, "LARGE_TEXT_STAGE", 1000)  # the ball's stage is a few kB
+    with pytest.warns(UserWarning, match=r"usda holds .* MiB of text; the same stage as \.usdc"):
+        write_usd(ball, tmp_path / "big.usda", TIMES[:2])
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_usd(ball, tmp_path / "big.usdc", TIMES[:2])  # binary: no warning
+
+
+def test_the_splat_prim_falls_back_to_points_only_where_the_schema_is_unknown(usd_file):
+    """usd-core knows the splat schema, so the prim stays splats here; the stage names Points as its fallback
+    (Blender's older OpenUSD reads it so: tests/test_blender.py) and the prim carries what Points reads."""
+    from pxr import Usd, UsdGeom, UsdVol
+
+    stage = Usd.Stage.Open(str(usd_file))
+    prim = stage.GetPrimAtPath(PRIM_PATHS["splats"])
+    assert prim.IsA(UsdVol.ParticleField3DGaussianSplat) and not prim.IsA(UsdGeom.Points)
+    assert dict(stage.GetMetadata("fallbackPrimTypes")) == {"ParticleField3DGaussianSplat": ["Points"]}
+    points = UsdGeom.Points(prim)
+    np.testing.assert_array_equal(_np(points.GetPointsAttr().Get(1)), _np(prim.GetAttribute("positions").Get(1)))
+    assert len(points.GetWidthsAttr().Get(1)) == len(points.GetPointsAttr().Get(1))

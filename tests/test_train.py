@@ -49,6 +49,7 @@ def test_training_lowers_loss_and_beats_initial_psnr(tiny, tmp_path):
     assert [str(tiny / v.name) for v in ck.views] == [v.name for v in ds.train]  # names relative to the dataset
     np.testing.assert_allclose(ck.views[-1].camera.c2w, ds.train[-1].camera.c2w, atol=1e-12)
     assert ck.training["iteration"] == 80 and ck.provenance["tool"] == "splatreel train"
+    assert ck.provenance["up_axis"] == ds.up == "z"  # exporters declare the dataset's up axis
     assert ck.background == ds.background and state_path(res.out).exists()
 
 

@@ -354,3 +354,27 @@ def test_view_options_that_cannot_apply_are_one_line_errors_before_any_window(ca
     assert main(["view", "--size", "160x120", *extra]) == 1
     err = capsys.readouterr().err.strip()
     assert message in err and "\n" not in err
+
+
+def test_the_window_title_names_the_file_and_show_box_draws_the_box_before_it_crops(tmp_path):
+    from splatreel.viewer.frames import FramePlanner
+    from splatreel.viewer.renderer import SplatRenderer, headless_context
+    from splatreel.viewer.state import AppOptions, AppState
+
+    model = synthetic_model(20, seed=0)
+    ckpt = save_checkpoint(tmp_path / "walker.safetensors", model)
+    app = AppState(str(ckpt), AppOptions(play=False))
+    assert app.title == "splatreel"  # nothing open yet
+    app.renderer = SplatRenderer(headless_context())
+    app.load(str(ckpt))
+    assert app.title == "walker.safetensors - splatreel" and app.report["title"] == app.title
+    planner = FramePlanner(app)
+    try:
+        view = orbit(4, 30, 3.0, fov_deg=40, width=64, height=48)
+        assert len(planner.overlay_lines(view)[0]) == 0  # box hidden by default
+        app._crop.show = True  # "show box" ticked while "crop to box" is off: the box is placed, nothing cropped
+        assert not app._crop.enabled and len(planner.overlay_lines(view)[0]) == 12
+        assert len(app.renderer.model) == len(model)
+    finally:
+        planner.close()
+        app.renderer.release()

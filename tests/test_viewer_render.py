@@ -15,6 +15,7 @@ import torch
 
 from splatreel.cameras import orbit
 from splatreel.checkpoint import save_checkpoint
+from splatreel.colorspace import premultiplied_to_linear, srgb_to_linear
 from splatreel.cli import main
 from splatreel.constants import TRANSMITTANCE_THRESHOLD
 from splatreel.viewer.renderer import RENDER_MODES, RenderSettings, SplatRenderer, headless_context, render_image
@@ -65,6 +66,16 @@ def test_exr_keeps_alpha(ckpt, tmp_path):
     assert 0.05 < (alpha > 0.5).mean() < 0.9
     # premultiplied: no colour where there is no coverage
     assert np.abs(data[..., :3][alpha == 0]).max() == 0.0
+    # scene-linear light: the same frame's PNG (sRGB-encoded, straight alpha), decoded, times alpha
+    png = tmp_path / "still.png"
+    assert main(["render", str(ckpt), "--out", str(png), "--size", "64x48", "--background", "transparent",
+                 "--time", "0.5", "--quiet"]) == 0
+    straight = cv2.cvtColor(cv2.imread(str(png), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA) / 255.0
+    assert np.abs(straight[..., 3] - alpha).max() <= 0.5 / 255 + 1e-3  # alpha unchanged
+    linearised = srgb_to_linear(straight[..., :3]) * alpha[..., None]
+    assert np.abs(data[..., :3] - linearised).max() < 5e-3  # one 8-bit step of the PNG, in linear light
+    mid = (alpha > 0.99) & (straight[..., :3].max(-1) > 0.2)
+    assert (data[..., :3][mid] < straight[..., :3][mid] - 0.02).any()  # really decoded: darker than the PNG
 
 
 def test_png_sequence_with_alpha_and_no_overwrite(ckpt, tmp_path, capsys):
@@ -228,7 +239,7 @@ def test_render_crop_draws_only_the_box_and_frames_it(model, ckpt, tmp_path):
     framing = frame_model(half)
     cam = orbit_cameras(1, 64, 48, framing.center, framing.distance(40.0))[0]
     want = render_image(half, cam, 0.5, RenderSettings(transparent=True))
-    assert np.abs(got - want).max() < 2e-3  # half floats
+    assert np.abs(got - premultiplied_to_linear(want)).max() < 2e-3  # EXR: linear light, half floats
     whole = render_image(model, cam, 0.5, RenderSettings(transparent=True))
     assert np.abs(whole[..., 3] - want[..., 3]).mean() > 0.02  # the crop really removed something in view
 

@@ -380,7 +380,8 @@ class Trainer:
                     "alpha_disagreement": round(found.worst_share, 4) if found.checked else None,
                     "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha)}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
-                        provenance={"tool": "splatreel train", "preset": self.cfg.preset}, training=training,
+                        provenance={"tool": "splatreel train", "preset": self.cfg.preset, "up_axis": self.ds.up},
+                        training=training,
                         views=[DatasetView(relative_name(v.name, self.ds.root), v.camera, v.time)
                                for v in self.ds.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),

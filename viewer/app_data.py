@@ -116,7 +116,8 @@ class CropEditor:
     enabled: bool = False
     lo: list = field(default_factory=lambda: [-1.0, -1.0, -1.0])
     hi: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
-    show: bool = True
+    #: draw the box (the edited one, whether or not it crops): off until cropping is first turned on
+    show: bool = False
     shown: CropBox | None = None
     #: how long the last crop took to apply: above LIVE_CROP_MS, a drag applies when it is released
     apply_ms: float = 0.0

@@ -149,7 +149,7 @@ class FramePlanner:
         path_lines, frustums = self._overlay_geometry(view.width, view.height, depth)
         segs, colors = frustums.lines(view.position, 1e-3 * depth)
         ce = app._crop
-        box = ce.box() if ce.show else None
+        box = ce.edited() if ce.show else None  # shown while placed, before it crops
         box_lines = box_segments(box.lo, box.hi) if box is not None else np.zeros((0, 2, 3))
         inspected = app._inspected(app.playback.time)
         pick_lines = inspected[1] if inspected is not None else np.zeros((0, 2, 3))

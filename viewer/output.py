@@ -11,7 +11,9 @@ by alpha (alpha is 1 everywhere over an opaque background). What each format sto
   as a transparent video (even width and height).
 * ``.png`` (a single image, or a folder of ``frame_00000.png``...): 8-bit RGB, or RGBA with *straight* alpha
   (colour divided by alpha, the PNG convention) when the background is transparent.
-* ``.exr`` (single image or folder): half-float RGBA, *premultiplied* alpha (the OpenEXR convention), no clamping.
+* ``.exr`` (single image or folder): half-float RGBA in *scene-linear* light (the sRGB-encoded display colour
+  decoded, `splatreel.colorspace`), *premultiplied* alpha (the OpenEXR convention), no clamping: what
+  compositors (Nuke, Blender, OpenImageIO tools) assume an EXR holds. Every other output holds sRGB-encoded values.
 
 Video alpha is straight, as ffmpeg and the players expect. Every video is converted to YUV with the BT.709 matrix
 and tagged BT.709 (primaries, transfer, matrix, limited range), so players show the rendered sRGB colours as they
@@ -99,8 +101,10 @@ def write_png(path: str | os.PathLike, rgba: np.ndarray, alpha: bool) -> None:
 
 
 def write_exr(path: str | os.PathLike, rgba: np.ndarray) -> None:
-    """Write a display image as a half-float RGBA OpenEXR (premultiplied alpha)."""
+    """Write a display image as a half-float RGBA OpenEXR: linear light, premultiplied alpha."""
     import OpenImageIO as oiio
+
+    from splatreel.colorspace import premultiplied_to_linear
 
     h, w = rgba.shape[:2]
     spec = oiio.ImageSpec(w, h, 4, "half")
@@ -109,7 +113,7 @@ def write_exr(path: str | os.PathLike, rgba: np.ndarray) -> None:
     out = oiio.ImageOutput.create(str(path))
     if out is None or not out.open(str(path), spec):
         raise OutputError(f"{path}: could not open for EXR output ({oiio.geterror()})")
-    ok = out.write_image(np.ascontiguousarray(rgba, np.float32))
+    ok = out.write_image(np.ascontiguousarray(premultiplied_to_linear(rgba), np.float32))
     out.close()
     if not ok:
         raise OutputError(f"{path}: could not write EXR ({oiio.geterror()})")

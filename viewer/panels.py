@@ -204,7 +204,8 @@ def edit_tab(app: AppState) -> None:
     ce, ed = app._crop, app._editor
     edits = ed.edits
     imgui.separator_text("Crop box")
-    _, ce.enabled = imgui.checkbox("crop to box", ce.enabled)
+    changed, ce.enabled = imgui.checkbox("crop to box", ce.enabled)
+    ce.show = ce.show or (changed and ce.enabled)  # turning cropping on shows its box
     imgui.same_line()
     _, ce.show = imgui.checkbox("show box", ce.show)
     step = max(app.framing.radius, 1e-3) / 200.0

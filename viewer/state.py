@@ -106,6 +106,11 @@ class AppState:
             self.select_rect(*self._current_view(*self.size), o.select)
             self._edit_tab_first = True
 
+    @property
+    def title(self) -> str:
+        """The window's title: the open file's name, then the tool's."""
+        return f"{os.path.basename(self.source_name)} - splatreel" if self.source_name else "splatreel"
+
     def finish(self, frames: int) -> dict:
         """The report's totals after `frames` frames, written to the options' report file when one is named."""
         self.report.update(frames=frames, time_end=self.playback.time, sorts=self._stats.sorts,
@@ -157,6 +162,7 @@ class AppState:
             self.playback.time = start
         self.controller.reset(self.framing)
         self.status = f"opened {self.source_name}: {len(model):,} Gaussians"
+        self.report["title"] = self.title
         if not self.options.cameras:
             self._views = self._training_views(ckpt)
         self._update_frame_times()
@@ -214,7 +220,7 @@ class AppState:
         (``--crop``) when given."""
         if values is not None:
             box = CropBox.of(values)
-            return CropEditor(enabled=True, lo=list(box.lo), hi=list(box.hi))
+            return CropEditor(enabled=True, lo=list(box.lo), hi=list(box.hi), show=True)
         return CropEditor(lo=extent[0].tolist(), hi=extent[1].tolist())
 
     def _in_box(self, box: CropBox | None) -> np.ndarray:

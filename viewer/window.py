@@ -42,7 +42,7 @@ class AppWindow:
             app.size = glfw.get_framebuffer_size(self._window)
             app.start()
             last = time.perf_counter()
-            frames = 0
+            frames, title = 0, "splatreel"
             while True:
                 if glfw.window_should_close(self._window):
                     if not app._drops_unsaved_edits("close the window"):
@@ -58,6 +58,9 @@ class AppWindow:
                 if app._pending_open:
                     path, app._pending_open = app._pending_open, None
                     app._open(path)
+                if app.title != title:
+                    title = app.title
+                    glfw.set_window_title(self._window, title)
                 final = o.exit_after is not None and frames + 1 >= o.exit_after
                 if final and o.screenshot:
                     app._screenshot_request = o.screenshot

@@ -169,3 +169,15 @@ def test_a_frame_with_nothing_visible_exports_as_an_empty_ply(tmp_path):
     model.log_t_scales[:] = np.log(0.05)  # gone long before t = 1
     paths = write_ply_sequence(model, tmp_path / "frames", [0.0, 1.0], drop_invisible=True)
     assert len(read_checkpoint(paths[1]).model) == 0 and len(read_checkpoint(paths[0]).model) == 4
+
+
+def test_binary_ply_with_a_list_element_before_the_vertices(tmp_path):
+    """plyfile reads any element layout: a binary file whose ``face`` element (a list property) comes before the
+    vertices still gives the splats."""
+    src = write_splat_ply(tmp_path / "a.ply", **random_splats(3, 0, seed=2))
+    data = src.read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    head = head.replace(b"element vertex", b"element face 1\nproperty list uchar int vertex_indices\nelement vertex")
+    face = np.array([3], "<u1").tobytes() + np.array([0, 1, 2], "<i4").tobytes()
+    (tmp_path / "b.ply").write_bytes(head + b"end_header\n" + face + body)
+    torch.testing.assert_close(read_checkpoint(tmp_path / "b.ply").model.means, read_checkpoint(src).model.means)

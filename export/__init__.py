@@ -1,13 +1,12 @@
 """Exporters: OpenUSD, per-frame meshes, per-frame 3DGS PLY.
 
-Every exporter takes any model (`Gaussians4D`, `KeyframedGaussians`, whatever `splatreel.formats.load_model` returns)
-and only calls ``model.slice(t)`` at the frame times from `frame_times`. Importing this package registers the
-built-in formats; `exporters()` lists them (the ``splatreel export`` choices come from it).
+Every exporter takes any model (`Gaussians4D`, `KeyframedGaussians`, whatever `splatreel.formats.read_checkpoint`
+returns) and only calls ``model.slice(t)`` at the frame times from `frame_times`. The formats are listed once, in the
+registry of `splatreel.formats` (its writers, each naming its module here: `usd`, `mesh`, `ply`, each with
+``add_args`` and ``run``), and imported when used; `exporters()` gives them by name (the ``splatreel export``
+choices).
 """
 
-from .base import (ExportError, Exporter, SplatFrame, exporters, frame_times, iter_frames, register_exporter,
-                   slice_frame)
-from . import usd, mesh, ply  # noqa: E402,F401  (register the built-in formats)
+from .base import ExportError, SplatFrame, exporters, frame_times, iter_frames, slice_frame
 
-__all__ = ["ExportError", "Exporter", "SplatFrame", "exporters", "frame_times", "iter_frames", "register_exporter",
-           "slice_frame", "usd", "mesh", "ply"]
+__all__ = ["ExportError", "SplatFrame", "exporters", "frame_times", "iter_frames", "slice_frame"]

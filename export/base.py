@@ -15,11 +15,9 @@ here and used by every format:
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Callable, Iterable, Iterator, Sequence
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -243,35 +241,9 @@ def manifest(kind: str, times: Sequence[float], files: Sequence[str], fps: float
 
 # --- registry ------------------------------------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class Exporter:
-    """One output format of ``splatreel export``.
+def exporters() -> dict:
+    """Name -> `splatreel.formats.Writer` of every output format (the ``splatreel export`` choices), from the one
+    registry in `splatreel.formats`."""
+    from splatreel.formats import writers
 
-    Attributes:
-        name: the sub-subcommand (``splatreel export NAME``).
-        help: one line for --help.
-        output: metavar of the output argument (``OUT.usd``, ``OUTDIR``).
-        add_args: adds the format's own options to its argparse parser.
-        run: ``run(model, times, out, args) -> list[Path]`` writes the output (``args`` carries ``fps``, ``force``,
-            ``progress`` and the format's options) and returns the files written.
-    """
-
-    name: str
-    help: str
-    output: str
-    add_args: Callable[[argparse.ArgumentParser], None]
-    run: Callable[..., list[Path]]
-
-
-_EXPORTERS: dict[str, Exporter] = {}
-
-
-def register_exporter(exporter: Exporter) -> Exporter:
-    """Add (or replace, by name) an output format."""
-    _EXPORTERS[exporter.name] = exporter
-    return exporter
-
-
-def exporters() -> dict[str, Exporter]:
-    """Name -> `Exporter` of every registered format (importing `splatreel.export` registers the built-in ones)."""
-    return dict(_EXPORTERS)
+    return {w.name: w for w in writers()}

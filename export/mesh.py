@@ -38,8 +38,8 @@ import torch
 from splatreel.covariance import covariance_3d
 from splatreel.fileio import atomic_dir
 
-from .base import (ExportError, Exporter, SplatFrame, box_of, frame_file_name, iter_frames, manifest,
-                   Y_UP_FORMATS, register_exporter, resolve_up_axis, srgb_to_linear, to_y_up)
+from .base import (Y_UP_FORMATS, ExportError, SplatFrame, box_of, frame_file_name, iter_frames, manifest,
+                   resolve_up_axis, srgb_to_linear, to_y_up)
 
 MESH_FORMATS: tuple[str, ...] = ("obj", "ply", "glb")
 #: Gaussians are truncated outside this Mahalanobis distance (their 3-sigma ellipsoid).
@@ -364,7 +364,8 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
     return [outdir / n for n in names + extra + ["manifest.json"]]
 
 
-def _add_args(p: argparse.ArgumentParser) -> None:
+def add_args(p: argparse.ArgumentParser) -> None:
+    """The format's own options of ``splatreel export mesh`` (its entry in `splatreel.formats`)."""
     p.add_argument("--format", choices=MESH_FORMATS, default="ply", help="per-frame mesh format (default ply)")
     p.add_argument("--resolution", type=int, default=128,
                    help="voxels along the longest side of the grid shared by all frames (default 128)")
@@ -376,14 +377,10 @@ def _add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-usd", action="store_true", help="do not write mesh_sequence.usd")
 
 
-def _run(model, times, out, args) -> list[Path]:
+def run(model, times, out, args) -> list[Path]:
+    """``splatreel export mesh``: write `model` at `times` to `out` as the parsed `args` say."""
     options = MeshOptions(format=args.format, resolution=args.resolution, iso=args.iso, fill=not args.no_fill,
                           color_neighbors=args.color_neighbors, usd=not args.no_usd, fps=args.fps,
                           up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)),
                           meters_per_unit=args.meters_per_unit)
     return write_mesh_sequence(model, out, times, options, force=args.force, progress=args.progress)
-
-
-EXPORTER = register_exporter(Exporter(
-    name="mesh", help="one marching-cubes surface per frame (obj/ply/glb) + mesh_sequence.usd",
-    output="OUTDIR", add_args=_add_args, run=_run))

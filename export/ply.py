@@ -15,8 +15,7 @@ from typing import Sequence
 from splatreel.fileio import atomic_dir
 from splatreel.ply_layout import OPACITY_EPS, ply_bytes, splats_to_ply_records
 
-from .base import (Exporter, SplatFrame, frame_file_name, iter_frames, manifest, register_exporter,
-                   resolve_up_axis)
+from .base import SplatFrame, frame_file_name, iter_frames, manifest, resolve_up_axis
 
 
 def frame_ply_bytes(frame: SplatFrame, drop_invisible: bool = False) -> bytes:
@@ -49,18 +48,15 @@ def write_ply_sequence(model, outdir: str | Path, times: Sequence[float], fps: f
     return [outdir / n for n in names] + [outdir / "manifest.json"]
 
 
-def _add_args(p: argparse.ArgumentParser) -> None:
+def add_args(p: argparse.ArgumentParser) -> None:
+    """The format's own options of ``splatreel export ply`` (its entry in `splatreel.formats`)."""
     p.add_argument("--drop-invisible", action="store_true",
                    help="omit Gaussians invisible at a frame (default: keep every Gaussian in model order, "
                         "invisible ones with ~zero opacity, so the sequence has a fixed count)")
 
 
-def _run(model, times, out, args) -> list[Path]:
+def run(model, times, out, args) -> list[Path]:
+    """``splatreel export ply``: write `model` at `times` to `out` as the parsed `args` say."""
     return write_ply_sequence(model, out, times, fps=args.fps, drop_invisible=args.drop_invisible,
                               force=args.force, progress=args.progress,
                               up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)))
-
-
-EXPORTER = register_exporter(Exporter(
-    name="ply", help="one standard 3DGS PLY per frame (+ manifest.json), for other splat viewers",
-    output="OUTDIR", add_args=_add_args, run=_run))

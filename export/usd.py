@@ -17,11 +17,12 @@ Every per-particle attribute is authored at every time code, with the same N and
 Gaussian: positions lerp (exact for native 4D Gaussians, which move linearly), orientations slerp, opacities and SH
 lerp (a piecewise-linear approximation of the temporal Gaussian and of the cosine colour terms).
 
-Splats (schema facts in shared notes ``export.md`` §1): positions, orientations (quatf), scales (linear std-devs),
-opacities (linear), ``radiance:sphericalHarmonicsCoefficients`` (raw 3DGS coefficients, per particle K = (d+1)^2
-RGB triplets in 3DGS order; ``elementSize = K``), uniform ``radiance:sphericalHarmonicsDegree`` (always
-authored), a DC ``primvars:displayColor`` fallback, and an extent per sample covering the 3-sigma ellipsoid of every
-Gaussian visible at that sample or a neighbouring one (so interpolated times are covered too).
+Splats (OpenUSD's ``UsdVol.ParticleField3DGaussianSplat`` schema, OpenUSD >= 26.03, ``pxr/usd/usdVol/schema.usda``):
+positions, orientations (quatf), scales (linear std-devs), opacities (linear),
+``radiance:sphericalHarmonicsCoefficients`` (raw 3DGS coefficients, per particle K = (d+1)^2 RGB triplets in 3DGS order;
+``elementSize = K``), uniform ``radiance:sphericalHarmonicsDegree`` (always authored), a DC ``primvars:displayColor``
+fallback, and an extent per sample covering the 3-sigma ellipsoid of every Gaussian visible at that sample or a
+neighbouring one (so interpolated times are covered too).
 
 Instancer: one unit-sphere prototype; per instance positions, ``orientations`` (quath, read by Blender) and
 ``orientationsf`` (quatf, preferred by USD >= 26.11), ``scales = instance_sigmas * std-devs`` (the sphere becomes the
@@ -56,8 +57,8 @@ import numpy as np
 
 from splatreel.fileio import atomic_path
 
-from .base import (ExportError, Exporter, SplatFrame, box_of, iter_frames, live_near, register_exporter,
-                   resolve_up_axis, srgb_to_linear, time_step, with_neighbours)
+from .base import (ExportError, SplatFrame, box_of, iter_frames, live_near, resolve_up_axis, srgb_to_linear,
+                   time_step, with_neighbours)
 
 #: The prim kinds ``--what`` chooses from, in authoring order.
 USD_PRIM_KINDS: tuple[str, ...] = ("splats", "instancer", "points")
@@ -440,20 +441,17 @@ def write_usd(model, path: str | Path, times: Sequence[float], options: UsdOptio
     return written
 
 
-def _add_args(p: argparse.ArgumentParser) -> None:
+def add_args(p: argparse.ArgumentParser) -> None:
+    """The format's own options of ``splatreel export usd`` (its entry in `splatreel.formats`)."""
     p.add_argument("--what", default=",".join(USD_PRIM_KINDS), metavar="KINDS",
                    help=f"comma-separated prim kinds to write, from {','.join(USD_PRIM_KINDS)} (default: all)")
     p.add_argument("--instance-sigmas", type=float, default=2.0,
                    help="instancer spheres are the k-sigma ellipsoids; points are 2k mean-sigma wide (default 2)")
 
 
-def _run(model, times, out, args) -> list[Path]:
+def run(model, times, out, args) -> list[Path]:
+    """``splatreel export usd``: write `model` at `times` to `out` as the parsed `args` say."""
     up = resolve_up_axis(args.up_axis, getattr(args, "provenance", None))
     options = UsdOptions(what=parse_what(args.what), fps=args.fps, up_axis=up,
                          meters_per_unit=args.meters_per_unit, instance_sigmas=args.instance_sigmas)
     return [write_usd(model, out, times, options, force=args.force, progress=args.progress)]
-
-
-EXPORTER = register_exporter(Exporter(
-    name="usd", help="one OpenUSD stage with time-sampled splats, a point instancer and points",
-    output="OUT.usd|.usda|.usdc|.usdz", add_args=_add_args, run=_run))

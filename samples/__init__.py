@@ -17,7 +17,7 @@ model is built too: the objects from their motion plus a static floor where the 
 >>> path = trained_checkpoint("spinner")                      # bundled checkpoint trained on the spinner dataset
 """
 
-from .dataset import DatasetConfig, View, test_views, train_times, train_views, transforms_json, write_dataset
+from .dataset import DatasetConfig, SampleView, test_views, train_times, train_views, transforms_json, write_dataset
 from .floor import SCENES, FloorConfig, FloorScene
 from .gaussians import build_model
 from .geometry import Mesh
@@ -27,6 +27,6 @@ from .render import MeshRenderer, shade
 from .trained import TRAINED, trained_checkpoint
 
 __all__ = ["BOUNDING_RADIUS", "DatasetConfig", "FloorConfig", "FloorScene", "Mesh", "MeshRenderer", "OBJECTS",
-           "SAMPLES", "SCENES", "SampleConfigError", "SampleObject", "TRAINED", "UnknownSampleError", "View",
+           "SAMPLES", "SCENES", "SampleConfigError", "SampleObject", "SampleView", "TRAINED", "UnknownSampleError",
            "build_model", "get_sample", "mesh_at", "object_bounds", "object_center", "shade", "test_views",
            "train_times", "train_views", "trained_checkpoint", "transforms_json", "write_dataset"]

@@ -22,10 +22,8 @@ Blender camera axes = Camera.to_opengl_c2w()), w, h}]``.
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterator
@@ -35,6 +33,7 @@ import numpy as np
 
 from splatreel import __version__
 from splatreel.cameras import Camera, fov_from_focal, orbit
+from splatreel.datasets.dnerf import clean_number, transforms_for, write_transforms
 from splatreel.errors import SplatreelError
 from splatreel.fileio import atomic_dir, check_writable
 
@@ -91,8 +90,8 @@ class DatasetConfig:
 
 
 @dataclass(frozen=True)
-class View:
-    """One image of a dataset: where it goes, when and from where it is seen."""
+class SampleView:
+    """One image a sample dataset will hold (before it is rendered): where it goes, when and from where it is seen."""
 
     split: str
     index: int
@@ -117,17 +116,17 @@ def _camera(config: DatasetConfig, elevation: float, azimuth: float) -> Camera:
                  up="z")
 
 
-def train_views(config: DatasetConfig) -> list[View]:
+def train_views(config: DatasetConfig) -> list[SampleView]:
     """The training image matrix, ordered by time then azimuth."""
     out = []
     for f, t in enumerate(train_times(config.frames)):
         for v in range(config.views):
             az = 360.0 * v / config.views
-            out.append(View("train", len(out), t, az, config.elevation, _camera(config, config.elevation, az)))
+            out.append(SampleView("train", len(out), t, az, config.elevation, _camera(config, config.elevation, az)))
     return out
 
 
-def test_views(config: DatasetConfig) -> list[View]:
+def test_views(config: DatasetConfig) -> list[SampleView]:
     """Novel views at novel times (see module doc), ordered by time."""
     n, steps = config.test_views, config.frames - 1
     step = 360.0 / config.views
@@ -139,29 +138,13 @@ def test_views(config: DatasetConfig) -> list[View]:
             t = (math.floor((i - 1) * steps / max(n - 1, 1)) + 0.5) / steps
         az = step * (math.floor(i * config.views / n) + 0.5)
         el = float(np.clip(config.elevation + TEST_ELEVATION_OFFSETS[i % 2], -89.0, 89.0))
-        out.append(View("test", i, t, az, el, _camera(config, el, az)))
+        out.append(SampleView("test", i, t, az, el, _camera(config, el, az)))
     return out
 
 
-def _clean(x: float) -> float:
-    """Round away float noise so the JSON is short and stable (-0.0 becomes 0.0)."""
-    return round(float(x), 10) + 0.0
-
-
-def transforms_json(views: list[View], config: DatasetConfig) -> dict:
+def transforms_json(views: list[SampleView], config: DatasetConfig) -> dict:
     """The ``transforms_<split>.json`` content for `views`."""
     return transforms_for(views, _camera(config, config.elevation, 0.0))
-
-
-def transforms_for(views: list[View], intrinsics: Camera) -> dict:
-    """The ``transforms_<split>.json`` content for `views`, whose cameras all share the intrinsics and image size
-    of the camera `intrinsics` (written once at the top level; the split may be empty)."""
-    cam = intrinsics
-    frames = [{"file_path": v.file_path, "time": _clean(v.time),
-               "transform_matrix": [[_clean(x) for x in row] for row in v.camera.to_opengl_c2w()],
-               "w": cam.width, "h": cam.height} for v in views]
-    return {"camera_angle_x": _clean(cam.fov_x), "fl_x": _clean(cam.fx), "fl_y": _clean(cam.fy),
-            "cx": _clean(cam.cx), "cy": _clean(cam.cy), "w": cam.width, "h": cam.height, "frames": frames}
 
 
 def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer, num_train: int,
@@ -171,7 +154,7 @@ def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer
         "generator": "splatreel sample", "generator_version": GENERATOR_VERSION, "splatreel_version": __version__,
         "name": obj.name, "description": obj.description, "object": obj.params(),
         "render": {**asdict(config), "supersample": renderer.supersample, "msaa": renderer.msaa,
-                   "light_dir": [_clean(x) for x in LIGHT_DIR], "ambient": AMBIENT,
+                   "light_dir": [clean_number(x) for x in LIGHT_DIR], "ambient": AMBIENT,
                    "diffuse": DIFFUSE, "background": "transparent (straight alpha)"},
         "world": "Blender: +z up; cameras: orbit(up='z'), azimuth 0 on +x towards +y, looking at the origin",
         "time_range": [0.0, 1.0],
@@ -181,8 +164,8 @@ def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer
     }
 
 
-def render_views(obj: SampleObject, views: list[View], renderer: MeshRenderer,
-                 far: float = FAR) -> Iterator[tuple[View, np.ndarray]]:
+def render_views(obj: SampleObject, views: list[SampleView], renderer: MeshRenderer,
+                 far: float = FAR) -> Iterator[tuple[SampleView, np.ndarray]]:
     """Yield (view, RGBA image) in the order of `views`, evaluating the mesh once per run of equal times; `far` is
     the far clip of every image (see `MeshRenderer.draw`)."""
     current = None
@@ -198,13 +181,6 @@ def write_png(path: Path, rgba: np.ndarray) -> None:
     bgra = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGRA)
     if not cv2.imwrite(str(path), bgra, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]):
         raise SplatreelError(f"{path}: could not write PNG")
-
-
-def _write_json(path: Path, data: dict) -> None:
-    text = json.dumps(data, indent=2)
-    # Keep lists of numbers (matrix rows) on one line.
-    text = re.sub(r"\[\s+([-+0-9.eE,\s]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
-    path.write_text(text + "\n")
 
 
 def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | None = None, force: bool = False,
@@ -233,7 +209,7 @@ def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | Non
                         progress=progress, renderer=renderer)
 
 
-def write_layout(out: str | os.PathLike, obj: SampleObject, train: list[View], test: list[View],
+def write_layout(out: str | os.PathLike, obj: SampleObject, train: list[SampleView], test: list[SampleView],
                  intrinsics: Camera, info: Callable[[MeshRenderer], dict], far: float = FAR, force: bool = False,
                  progress: bool = False, renderer: MeshRenderer | None = None) -> Path:
     """Render the `train` and `test` views of `obj` and write them to `out` in the D-NeRF layout, atomically.
@@ -258,9 +234,9 @@ def write_layout(out: str | os.PathLike, obj: SampleObject, train: list[View], t
                 for view, rgba in render_views(obj, views, renderer, far):
                     write_png(tmp / f"{view.file_path}.png", rgba)
                     bar.update(1)
-                _write_json(tmp / f"transforms_{split}.json", transforms_for(views, intrinsics))
-            _write_json(tmp / "transforms_val.json", transforms_for(test, intrinsics))
-            _write_json(tmp / "sample.json", info(renderer))
+                write_transforms(tmp / f"transforms_{split}.json", transforms_for(views, intrinsics))
+            write_transforms(tmp / "transforms_val.json", transforms_for(test, intrinsics))
+            write_transforms(tmp / "sample.json", info(renderer))
     finally:
         if own:
             renderer.release()

@@ -66,9 +66,10 @@ import torch
 
 from splatreel import __version__
 from splatreel.cameras import Camera, look_at_c2w, orbit
+from splatreel.datasets.dnerf import clean_number
 from splatreel.model import Gaussians4D, static_gaussians4d
 
-from .dataset import GENERATOR_VERSION, View, _clean, write_layout
+from .dataset import GENERATOR_VERSION, SampleView, write_layout
 from .gaussians import DISC_THICKNESS, motion_model
 from .geometry import Mesh, axis_angle_matrix, grid_faces, mix, points_on_surface, smoothstep, sphere_topology
 from .objects import SampleConfigError, SampleObject, Spinner, _clamp_time
@@ -483,13 +484,13 @@ def train_times(frames: int) -> list[float]:
     return [i / (frames - 1) for i in range(frames)]
 
 
-def train_views(config: FloorConfig) -> list[View]:
+def train_views(config: FloorConfig) -> list[SampleView]:
     """Frame i at time ``i / (frames - 1)`` from camera ``i mod 12``, in that order."""
     rig = rig_cameras(config)
     out = []
     for i, t in enumerate(train_times(config.frames)):
         el, az, cam = rig[i % NUM_CAMERAS]
-        out.append(View("train", i, t, az, el, cam))
+        out.append(SampleView("train", i, t, az, el, cam))
     return out
 
 
@@ -515,25 +516,25 @@ def test_plan(frames: int, count: int) -> list[tuple[float, int]]:
     return sorted(plan, key=lambda p: p[0])
 
 
-def test_views(config: FloorConfig) -> list[View]:
+def test_views(config: FloorConfig) -> list[SampleView]:
     """The test images of `test_plan`: the rig's cameras at times between the training times."""
     rig = rig_cameras(config)
-    return [View("test", i, t, rig[c][1], rig[c][0], rig[c][2])
+    return [SampleView("test", i, t, rig[c][1], rig[c][0], rig[c][2])
             for i, (t, c) in enumerate(test_plan(config.frames, config.test_views))]
 
 
-def sample_json(scene: FloorScene, config: FloorConfig, renderer: MeshRenderer, train: list[View],
-                test: list[View]) -> dict:
+def sample_json(scene: FloorScene, config: FloorConfig, renderer: MeshRenderer, train: list[SampleView],
+                test: list[SampleView]) -> dict:
     """Provenance record written as ``sample.json`` (no timestamps: the dataset is byte-for-byte reproducible)."""
     rig = rig_cameras(config)
-    cameras = [{"index": k, "kind": "top" if k == TOP_CAMERA else "side", "elevation": _clean(el),
-                "azimuth": _clean(az), "position": [_clean(x) for x in cam.position]}
+    cameras = [{"index": k, "kind": "top" if k == TOP_CAMERA else "side", "elevation": clean_number(el),
+                "azimuth": clean_number(az), "position": [clean_number(x) for x in cam.position]}
                for k, (el, az, cam) in enumerate(rig)]
     return {
         "generator": "splatreel sample", "generator_version": GENERATOR_VERSION, "splatreel_version": __version__,
         "name": scene.name, "description": scene.description, "scene": scene.params(),
         "render": {**asdict(config), "supersample": renderer.supersample, "msaa": renderer.msaa,
-                   "light_dir": [_clean(x) for x in LIGHT_DIR], "ambient": AMBIENT, "diffuse": DIFFUSE,
+                   "light_dir": [clean_number(x) for x in LIGHT_DIR], "ambient": AMBIENT, "diffuse": DIFFUSE,
                    "far_clip": FAR_CLIP, "background": "transparent (straight alpha)"},
         "alpha": ("coverage of surfaces nearer than the far clip (camera-space depth along the viewing axis, the GL "
                   "far plane), NOT an object mask: the top camera's floor lies beyond the clip (alpha 0) while "

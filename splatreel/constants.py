@@ -1,7 +1,8 @@
 """Rendering constants shared by the trainer's rasterizer, the GL viewer (injected as GLSL #defines) and exporters.
 
 Each value is defined here once. They are the reference 3DGS / official 4DGS rasterizer constants
-(see shared notes `4dgs-core.md` §4.2-4.3 and `rasterizer.md` §1), so that a model trained by the official code
+(graphdeco-inria/diff-gaussian-rasterization ``cuda_rasterizer/forward.cu`` and ``auxiliary.h``, vendored by
+fudan-zvg/4d-gaussian-splatting; gsplat ``gsplat/cuda/_constants.py``), so that a model trained by the official code
 renders the same here, and the GL viewer matches the trainer's image.
 """
 

@@ -1,6 +1,8 @@
 """Gaussian covariances in 3D and 4D, and the slicing of a 4D Gaussian at a time t.
 
-This is the one module where the native 4DGS math lives (Yang et al. 2024; shared notes `4dgs-core.md` §1.3-1.5).
+This is the one module where the native 4DGS math lives (Yang et al. 2024, "Real-time Photorealistic Dynamic Scene
+Representation and Rendering with 4D Gaussian Splatting"; fudan-zvg/4d-gaussian-splatting ``scene/gaussian_model.py``
+``get_current_covariance_and_mean_offset`` and ``utils/general_utils.py`` ``build_rotation_4d``).
 Everything is plain torch, batched over a leading ``[N]`` and differentiable.
 
 4D rotation from two unit quaternions q_l = (a,b,c,d) and q_r = (p,q,r,s) (w first)::

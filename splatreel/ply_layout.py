@@ -18,15 +18,18 @@ with R = (degree+1)^2 - 1 rest coefficients per channel (f_rest count 0/9/24/45 
 * ``rot_0..3``: quaternion (w, x, y, z).
 
 `ply_property_names`, `ply_dtype`, `sh_to_ply_columns` / `ply_columns_to_sh` (the channel-major SH columns),
-`splats_to_ply_records` (activated arrays -> records) and its inverse `ply_records_to_splats`, `ply_header`,
-`ply_bytes`.
+`splats_to_ply_records` (activated arrays -> records) and its inverse `ply_records_to_splats`, and `ply_bytes`
+(the file; the PLY itself is read and written by `plyfile <https://github.com/dranjan/python-plyfile>`_, as the
+3DGS reference code does).
 """
 
 from __future__ import annotations
 
+import io
 from typing import Sequence
 
 import numpy as np
+from plyfile import PlyData, PlyElement
 
 from .errors import ModelError
 from .sh import sh_degree_from_bases
@@ -136,15 +139,11 @@ def ply_records_to_splats(records: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-def ply_header(num_vertices: int, sh_degree: int, comments: Sequence[str] = ()) -> bytes:
-    """ASCII header of a binary little-endian 3DGS PLY, ending with ``end_header\\n``."""
-    lines = ["ply", "format binary_little_endian 1.0", *[f"comment {c}" for c in comments],
-             f"element vertex {num_vertices}", *[f"property float {p}" for p in ply_property_names(sh_degree)],
-             "end_header"]
-    return ("\n".join(lines) + "\n").encode("ascii")
-
-
 def ply_bytes(records: np.ndarray, comments: Sequence[str] = ()) -> bytes:
-    """A whole 3DGS PLY file from `splats_to_ply_records` output."""
+    """A whole 3DGS PLY file (binary little-endian, one ``vertex`` element) from `splats_to_ply_records` output,
+    written by plyfile."""
     degree = sh_degree_from_property_names(records.dtype.names or ())
-    return ply_header(records.shape[0], degree, comments) + records.astype(ply_dtype(degree)).tobytes()
+    vertex = PlyElement.describe(records.astype(ply_dtype(degree), copy=False), "vertex")
+    out = io.BytesIO()
+    PlyData([vertex], text=False, byte_order="<", comments=list(comments)).write(out)
+    return out.getvalue()

@@ -1,7 +1,9 @@
 """Real spherical harmonics (degrees 0-3) and the 4D "spherindrical" time terms, for numpy and torch.
 
 This is the one place where colour-from-SH is defined. The basis, ordering and signs are the reference 3DGS ones
-(shared notes `4dgs-core.md` §1.6); the GLSL shader follows the same formulas.
+(graphdeco-inria/diff-gaussian-rasterization ``cuda_rasterizer/forward.cu`` ``computeColorFromSH``,
+graphdeco-inria/gaussian-splatting ``utils/sh_utils.py``; the time terms: fudan-zvg/4d-gaussian-splatting
+``utils/sh_utils.py`` ``eval_shfs_4d``); the GLSL shader follows the same formulas.
 
 Layouts
 -------

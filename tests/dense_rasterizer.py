@@ -2,8 +2,9 @@
 
 Written independently of `train/rasterize.py` (full-matrix EWA projection, a matrix inverse for the conic, the
 whole compositing as a cumulative product over a ``[pixels, N]`` tensor) and differentiable by plain autograd, in
-float64 or float32. Only the reference rules are shared, restated here from the shared notes (`rasterizer.md`
-§1.3-1.7, `4dgs-core.md` §4.2-4.3):
+float64 or float32. Only the reference rules are shared, restated here from the reference rasterizer
+(graphdeco-inria/diff-gaussian-rasterization ``cuda_rasterizer/forward.cu`` and ``auxiliary.h``, as vendored by
+fudan-zvg/4d-gaussian-splatting):
 
 * cull: not visible, z <= 0.2, opacity < 1/255, det(Σ2D + 0.3 I) <= 0, the square ``mean ± r`` box off-image;
   r = ceil(3 sqrt(mid + sqrt(max(0.1, mid² - det))));

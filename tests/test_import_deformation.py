@@ -8,7 +8,7 @@ import torch
 from test_import_helpers import deformation_state_dict, random_splats, write_deformation_folder
 
 from splatreel.errors import CheckpointError
-from splatreel.formats import load_model
+from splatreel.formats import read_checkpoint
 from splatreel.importers.hexplane import parse_state_dict
 
 AABB = ((2.0, 1.0, 1.5), (-1.0, -1.0, -0.5))  # row 0 = max, row 1 = min, as stored; not symmetric
@@ -59,7 +59,7 @@ def _ramp_x(x):  # (x̂ + 1) / 2 with x̂ = (x - max) 2 / (min - max) - 1, clamp
 def test_4dgaussians_hexplane_moves_points_by_expected_offset(tmp_path):
     s = _points()
     write_deformation_folder(tmp_path, _known_field("4dgaussians", 0.8, 0.0), s)
-    ckpt = load_model(tmp_path, frames=5, time_range=(0.0, 1.0))
+    ckpt = read_checkpoint(tmp_path, frames=5, time_range=(0.0, 1.0))
     model = ckpt.model
     assert model.kind == "keyframed" and model.num_frames == 5
     for t in (0.0, 0.5, 1.0):
@@ -80,7 +80,7 @@ def test_4dgen_concatenated_features_and_time_rows(tmp_path):
     s = _points()
     write_deformation_folder(tmp_path, _known_field("4dgen", 0.6, -0.4), s,
                              cfg_args="Namespace(no_ds=True, no_dr=False, no_do=True, no_dc=True, grid_merge='cat')")
-    ckpt = load_model(tmp_path / "point_cloud" / "iteration_3000" / "deformation.pth")
+    ckpt = read_checkpoint(tmp_path / "point_cloud" / "iteration_3000" / "deformation.pth")
     model = ckpt.model
     assert model.num_frames == 16 and model.time_range == pytest.approx((0.0, 15 / 16))
     assert ckpt.background == (1.0, 1.0, 1.0)
@@ -103,7 +103,7 @@ def test_additive_rotation_opacity_head_and_static_table(tmp_path):
     table = torch.tensor([True, True, False, True])
     write_deformation_folder(tmp_path, sd, s, table=table,
                              cfg_args="Namespace(no_dx=False, no_ds=False, no_dr=False, no_do=False, no_dshs=True)")
-    ckpt = load_model(tmp_path, frames=2)
+    ckpt = read_checkpoint(tmp_path, frames=2)
     g = ckpt.model.slice(0.25)
     q = np.array([1.0, 0.5, 0, 0]) / np.linalg.norm([1.0, 0.5, 0, 0])  # raw q + dq, then normalised
     np.testing.assert_allclose(g.quats[[0, 1, 3]].numpy(), np.tile(q, (3, 1)), atol=1e-6)
@@ -128,9 +128,9 @@ def test_dnerf_lego_shapes_parse_and_bake(tmp_path):
             info["merge"], info["width"]) == (2, 32, [64, 128], 25, "mul", 64)
     write_deformation_folder(tmp_path, sd, random_splats(50, 3), iteration=20000)
     write_deformation_folder(tmp_path, sd, random_splats(40, 3), iteration=14000)
-    ckpt = load_model(tmp_path, frames=3)
+    ckpt = read_checkpoint(tmp_path, frames=3)
     assert len(ckpt.model) == 50 and ckpt.provenance["iteration"] == "iteration_20000"
-    assert len(load_model(tmp_path, frames=2, iteration=14000).model) == 40
+    assert len(read_checkpoint(tmp_path, frames=2, iteration=14000).model) == 40
 
 
 @pytest.mark.parametrize("change, message", [
@@ -144,13 +144,13 @@ def test_unexpected_state_dicts_are_refused(tmp_path, change, message):
     change(sd)
     write_deformation_folder(tmp_path, sd, random_splats(3, 0))
     with pytest.raises(CheckpointError, match=message):
-        load_model(tmp_path)
+        read_checkpoint(tmp_path)
 
 
 def test_table_length_mismatch_and_missing_iteration(tmp_path):
     sd = deformation_state_dict("4dgaussians", channels=2, base_res=RES, time_res=T, multires=(1,), width=4)
     write_deformation_folder(tmp_path, sd, random_splats(3, 0), table=torch.ones(5, dtype=torch.bool))
     with pytest.raises(CheckpointError, match=r"expected a bool tensor \[N=3\]"):
-        load_model(tmp_path)
+        read_checkpoint(tmp_path)
     with pytest.raises(CheckpointError, match="no point_cloud/iteration_7"):
-        load_model(tmp_path, iteration=7)
+        read_checkpoint(tmp_path, iteration=7)

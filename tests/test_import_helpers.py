@@ -1,8 +1,9 @@
-"""Builders of small files that follow other tools' documented layouts exactly (shared notes 4dgs-core.md §2,
-formats.md A.2-A.5, B.5-B.6), used by the importer tests. No tests here.
+"""Builders of small files that follow other tools' layouts exactly (fudan-zvg/4d-gaussian-splatting
+``scene/gaussian_model.py`` ``capture()``; hustvl/4DGaussians and VITA-Group/4DGen ``scene/deformation.py``,
+``scene/hexplane.py``, ``point_cloud.ply``, ``cfg_args``), used by the importer tests. No tests here.
 
-Independent reference math (numpy, written from the notes, not from splatreel) is here too, so that the tests
-check the importers against the formulas rather than against splatreel's own core.
+Independent reference math (numpy, written from those sources' formulas, not from splatreel) is here too, so that the
+tests check the importers against the formulas rather than against splatreel's own core.
 """
 
 from __future__ import annotations

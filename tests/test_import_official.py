@@ -13,7 +13,7 @@ import torch
 from test_import_helpers import C0, as_numpy1_pickle, capture_tuple, slice_reference
 
 from splatreel.errors import CheckpointError
-from splatreel.formats import load_model
+from splatreel.formats import read_checkpoint
 
 Q_L = [0.9, 0.3, -0.2, 0.25]  # unnormalised on purpose: the file stores raw quaternions
 Q_R = [0.8, -0.1, 0.35, 0.4]
@@ -31,7 +31,7 @@ def _one_gaussian(**extra):
 def test_slice_of_hand_made_gaussian_matches_formula_under_each_convention(tmp_path, convention):
     path = tmp_path / "chkpnt7000.pth"
     torch.save((capture_tuple(n=1, m=1, active_sh=0, active_sh_t=0, values=_one_gaussian()), 7000), path)
-    model = load_model(path, convention=convention, time_range=(0.0, 1.0)).model
+    model = read_checkpoint(path, convention=convention, time_range=(0.0, 1.0)).model
     assert model.rotation_convention == convention
     for t in (0.3, 0.45, 0.6):
         mean, cov, opacity = slice_reference([0.2, -0.4, 1.1], 0.45, [0.3, 0.12, 0.05], 0.2, Q_L, Q_R, 0.7,
@@ -45,8 +45,8 @@ def test_slice_of_hand_made_gaussian_matches_formula_under_each_convention(tmp_p
 def test_conventions_give_different_motion(tmp_path):
     path = tmp_path / "chkpnt7000.pth"
     torch.save((capture_tuple(n=1, m=1, active_sh=0, active_sh_t=0, values=_one_gaussian()), 7000), path)
-    a = load_model(path, convention="current").model.slice(0.8).means
-    b = load_model(path, convention="legacy").model.slice(0.8).means
+    a = read_checkpoint(path, convention="current").model.slice(0.8).means
+    b = read_checkpoint(path, convention="legacy").model.slice(0.8).means
     assert float((a - b).abs().max()) > 1e-2
 
 
@@ -54,7 +54,7 @@ def test_main_checkpoint_defaults_are_assumed_and_reported(tmp_path, caplog):
     path = tmp_path / "chkpnt30000.pth"
     torch.save((capture_tuple(n=6), 30000), path)
     with caplog.at_level(logging.WARNING, logger="splatreel.importers"):
-        ckpt = load_model(path)
+        ckpt = read_checkpoint(path)
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and "\n" not in lines[0]
     assert "--convention current" in lines[0] and "--time-range 0 1" in lines[0]
@@ -72,7 +72,7 @@ def test_efficient4d_bare_tuple_defaults_legacy_white_0_15(tmp_path):
     path = tmp_path / "model.pth"
     cap = capture_tuple(n=5, m=1, active_sh=0, active_sh_t=0, env_map=torch.empty(0), spatial_lr_scale=10)
     torch.save(cap, path)
-    ckpt = load_model(path)
+    ckpt = read_checkpoint(path)
     assert ckpt.model.rotation_convention == "legacy"
     assert ckpt.model.time_range == (0.0, 15.0)
     assert ckpt.background == (1.0, 1.0, 1.0)
@@ -86,7 +86,7 @@ def test_given_options_are_not_assumed_and_folder_picks_latest(tmp_path, caplog)
     torch.save((capture_tuple(n=3), 999), tmp_path / "chkpnt_best.pth")
     (tmp_path / "cfg_args").write_text("Namespace(sh_degree=3, white_background=True, source_path='/data/lego')")
     with caplog.at_level(logging.WARNING, logger="splatreel.importers"):
-        ckpt = load_model(tmp_path, convention="legacy", time_range=(0, 10))
+        ckpt = read_checkpoint(tmp_path, convention="legacy", time_range=(0, 10))
     assert ckpt.provenance["iteration"] == 30000
     assert ckpt.provenance["assumed"] == [] and not caplog.records
     assert ckpt.background == (1.0, 1.0, 1.0)  # from cfg_args white_background
@@ -101,7 +101,7 @@ def test_4d_colour_time_terms_and_cuda_degree_gating(tmp_path):
     values = _one_gaussian(_features_dc=dc, _features_rest=rest)
     path = tmp_path / "chkpnt1.pth"
     torch.save((capture_tuple(n=1, m=48, active_sh=3, active_sh_t=2, values=values), 1), path)
-    model = load_model(path, time_range=(0.0, 2.0)).model
+    model = read_checkpoint(path, time_range=(0.0, 2.0)).model
     assert (model.sh_degree, model.sh_degree_t) == (3, 2)
     for t in (0.1, 0.9):
         tau, period = 0.45 - t, 2.0
@@ -111,7 +111,7 @@ def test_4d_colour_time_terms_and_cuda_degree_gating(tmp_path):
         torch.testing.assert_close(rgb, expected.clamp_min(0), atol=1e-5, rtol=0)
     # active degree 2: the official CUDA path evaluates no time terms (they sit inside `if (deg > 2)`)
     torch.save((capture_tuple(n=1, m=48, active_sh=2, active_sh_t=2, values=values), 1), path)
-    gated = load_model(path, time_range=(0.0, 2.0)).model
+    gated = read_checkpoint(path, time_range=(0.0, 2.0)).model
     assert (gated.sh_degree, gated.sh_degree_t) == (2, 0)
     rgb = gated.slice(0.9).colors(torch.tensor([5.0, 1.0, 2.0]))[0]
     torch.testing.assert_close(rgb, (C0 * dc[0, 0] + 0.5).clamp_min(0), atol=1e-5, rtol=0)
@@ -121,7 +121,7 @@ def test_4d_colour_time_terms_and_cuda_degree_gating(tmp_path):
 def test_sh_layouts_inferred_from_coefficient_count(tmp_path, m, degrees):
     path = tmp_path / "chkpnt5.pth"
     torch.save((capture_tuple(n=2, m=m, active_sh=degrees[0], active_sh_t=degrees[1]), 5), path)
-    model = load_model(path).model
+    model = read_checkpoint(path).model
     assert (model.sh_degree, model.sh_degree_t) == degrees
 
 
@@ -129,7 +129,7 @@ def test_non_rot_4d_checkpoint_is_static_with_variance_marginal(tmp_path):
     values = _one_gaussian(_scaling_t=torch.tensor([[math.log(0.04)]]))  # stored as a log VARIANCE here
     path = tmp_path / "chkpnt3.pth"
     torch.save((capture_tuple(n=1, m=1, active_sh=0, active_sh_t=0, rot_4d=False, values=values), 3), path)
-    model = load_model(path).model
+    model = read_checkpoint(path).model
     g = model.slice(0.65)
     torch.testing.assert_close(g.means[0], torch.tensor([0.2, -0.4, 1.1]), atol=1e-6, rtol=0)
     expected = 1 / (1 + math.exp(-0.7)) * math.exp(-0.5 * 0.2 ** 2 / 0.04)
@@ -140,7 +140,7 @@ def test_numpy1_pickled_scalars_load(tmp_path):
     path = tmp_path / "chkpnt9.pth"
     torch.save((capture_tuple(n=2), 9), path)
     as_numpy1_pickle(path)
-    assert load_model(path, convention="current").provenance["spatial_lr_scale"] == pytest.approx(2.375)
+    assert read_checkpoint(path, convention="current").provenance["spatial_lr_scale"] == pytest.approx(2.375)
 
 
 class _Payload:
@@ -160,7 +160,7 @@ def test_malicious_pickle_is_refused_and_never_runs(tmp_path, how):
     else:
         path.write_bytes(pickle.dumps(((3, _Payload(marker)), 1), protocol=2))
     with pytest.raises(CheckpointError, match="refused to load.*system") as exc:
-        load_model(path)
+        read_checkpoint(path)
     assert "\n" not in str(exc.value)
     assert not marker.exists()
 
@@ -169,7 +169,7 @@ def test_cfg_args_code_is_never_evaluated(tmp_path):
     marker = tmp_path / "PWNED"
     torch.save((capture_tuple(n=1), 1), tmp_path / "chkpnt1.pth")
     (tmp_path / "cfg_args").write_text(f"Namespace(white_background=__import__('os').system('touch {marker}'))")
-    ckpt = load_model(tmp_path / "chkpnt1.pth")
+    ckpt = read_checkpoint(tmp_path / "chkpnt1.pth")
     assert not marker.exists() and ckpt.background == (0.0, 0.0, 0.0)
 
 
@@ -184,7 +184,7 @@ def test_bad_checkpoints_give_one_line_errors(tmp_path, payload, message):
     path = tmp_path / "chkpnt1.pth"
     torch.save(payload(), path)
     with pytest.raises(CheckpointError, match=message) as exc:
-        load_model(path)
+        read_checkpoint(path)
     assert "\n" not in str(exc.value) and str(path) in str(exc.value)
 
 
@@ -193,15 +193,15 @@ def test_truncated_checkpoint(tmp_path):
     torch.save((capture_tuple(n=2), 1), path)
     path.write_bytes(path.read_bytes()[:500])
     with pytest.raises(CheckpointError, match="not a readable PyTorch file"):
-        load_model(path)
+        read_checkpoint(path)
 
 
 def test_3d_capture_and_loaded_pth_dict(tmp_path):
     cap = capture_tuple(n=3, m=16, active_sh=3)
     cap3d = (3, *cap[1:7], torch.zeros(3), torch.zeros(3, 1), torch.zeros(3, 1), {}, np.float64(1.0))
     torch.save((cap3d, 100), tmp_path / "chkpnt100.pth")
-    model = load_model(tmp_path / "chkpnt100.pth").model
-    assert model.sh_degree == 3 and "gaussian_dim 3" in load_model(tmp_path / "chkpnt100.pth").provenance["tool"]
+    model = read_checkpoint(tmp_path / "chkpnt100.pth").model
+    assert model.sh_degree == 3 and "gaussian_dim 3" in read_checkpoint(tmp_path / "chkpnt100.pth").provenance["tool"]
     g = model.slice(0.5)
     torch.testing.assert_close(g.means, cap[1].detach(), atol=1e-6, rtol=0)
     torch.testing.assert_close(g.sh, torch.cat([cap[2], cap[3]], 1).detach(), atol=1e-6, rtol=0)
@@ -212,7 +212,7 @@ def test_3d_capture_and_loaded_pth_dict(tmp_path):
          "rotation": cap[5].detach(), "scaling_t": cap[14].detach(), "rotation_r": cap[15].detach(),
          "opacity": cap[6].detach()}
     torch.save(d, tmp_path / "init.pth")
-    model = load_model(tmp_path / "init.pth").model
+    model = read_checkpoint(tmp_path / "init.pth").model
     torch.testing.assert_close(model.sh_rest, cap[3].detach())
     torch.testing.assert_close(model.quats_r, cap[15].detach())
 
@@ -221,6 +221,6 @@ def test_env_map_is_dropped_with_a_warning(tmp_path, caplog):
     path = tmp_path / "chkpnt1.pth"
     torch.save((capture_tuple(n=2, env_map=torch.nn.Parameter(torch.rand(3, 8, 8))), 1), path)
     with caplog.at_level(logging.WARNING, logger="splatreel.importers"):
-        ckpt = load_model(path, convention="current", time_range=(0, 10), background=(0, 0, 0))
+        ckpt = read_checkpoint(path, convention="current", time_range=(0, 10), background=(0, 0, 0))
     assert "environment map [3, 8, 8] dropped" in ckpt.provenance["warnings"][0]
     assert [r.getMessage().count("environment map") for r in caplog.records] == [1]

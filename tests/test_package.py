@@ -56,3 +56,22 @@ def test_console_script_help():
     out = subprocess.run([str(exe), "--help"], capture_output=True, text=True, check=True).stdout
     for name in subcommands():
         assert name in out
+
+
+def test_the_format_registry_imports_its_formats_only_when_used():
+    """`splatreel.formats` lists every reader and writer by dotted path: importing it imports no importer or
+    exporter, and every path it names resolves (to a function, or a module with add_args and run)."""
+    code = ("import sys, splatreel.formats as f; "
+            "print(sorted(m for m in sys.modules if m.startswith(('splatreel.importers', 'splatreel.export'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    from splatreel.export import exporters
+    from splatreel.formats import readers, resolve, writers
+
+    assert [r.name for r in readers()] == ["4dgs-checkpoint", "deformation-folder", "ply", "ply-sequence",
+                                           "splatreel"]
+    for r in readers():
+        assert callable(resolve(r.sniff)) and callable(resolve(r.read)), r.name
+    assert list(exporters()) == [w.name for w in writers()] == ["usd", "mesh", "ply"]
+    for w in writers():
+        assert callable(resolve(f"{w.module}:add_args")) and callable(resolve(f"{w.module}:run")), w.name

@@ -81,6 +81,23 @@ def test_confidence_is_one_for_consistent_frames_and_low_where_corrupted():
     assert b_rgb[3][45:60, 45:60].mean() > 0.97  # the rest of the frame stays trusted
 
 
+
+@pytest.mark.parametrize("n", [2, 4, 3000])
+def test_knn_equals_the_brute_force_search(n):
+    """The k-d tree search gives each point the same neighbours, at the same distances, as comparing every pair
+    (what the initial scales and the trainer's neighbour lists used before)."""
+    from splatreel.train.initialize import knn, nearest_neighbour_sq_dist
+
+    points = torch.randn(n, 3, generator=torch.Generator().manual_seed(n))
+    d = torch.cdist(points.double(), points.double())  # [N, N], exact in float64
+    want_dist, want_idx = torch.topk(d, min(4, n), largest=False)
+    idx, dist = knn(points, k=3)
+    assert idx.shape == dist.shape == (n, min(3, n - 1)) and dist.dtype == points.dtype
+    assert torch.equal(idx, want_idx[:, 1:])
+    torch.testing.assert_close(dist.double(), want_dist[:, 1:], atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(nearest_neighbour_sq_dist(points).double(), (want_dist[:, 1:] ** 2).mean(-1),
+                               atol=1e-6, rtol=1e-6)
+
 def test_densification_keeps_every_tensor_and_adam_state_aligned():
     n = 50
     g = torch.Generator().manual_seed(0)

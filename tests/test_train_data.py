@@ -14,7 +14,8 @@ import pytest
 
 from splatreel.cli import main
 from splatreel.errors import DatasetError
-from splatreel.train.data import detect_layout, load_dataset
+from splatreel.datasets import detect_layout
+from splatreel.train.data import load_dataset
 
 P_ZUP = np.array([0.3, -0.2, 0.25])
 P_YUP = np.array([0.25, 0.3, -0.2])
@@ -94,6 +95,51 @@ def test_dnerf_layout(tmp_path):
     assert ds.time_range == (0.0, 1.0)
     check_reprojection(ds, P_ZUP)
 
+
+
+@pytest.mark.parametrize("sizes_in_json", [False, True])
+def test_trainer_and_viewer_read_the_same_dnerf_cameras(tmp_path, sizes_in_json):
+    """One D-NeRF reader: the trainer's views and the viewer's dataset cameras agree on poses, intrinsics, image
+    sizes (from the images when the JSON has no w/h) and times, for every split."""
+    from splatreel.viewer.camera_path import dataset_views
+
+    make_dnerf(tmp_path)
+    if sizes_in_json:
+        for split in ("train", "test"):
+            f = tmp_path / f"transforms_{split}.json"
+            f.write_text(json.dumps({**json.loads(f.read_text()), "w": 48, "h": 40}))
+    ds = load_dataset(tmp_path)
+    for split, trained in (("train", ds.train), ("test", ds.test)):
+        viewed = dataset_views(tmp_path, split)
+        assert len(viewed) == len(trained) == 4
+        for t, v in zip(trained, viewed):
+            assert (v.camera.width, v.camera.height) == (t.camera.width, t.camera.height) == (48, 40)
+            np.testing.assert_allclose(v.camera.c2w, t.camera.c2w, atol=1e-12)
+            assert (v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy) == \
+                (t.camera.fx, t.camera.fy, t.camera.cx, t.camera.cy)
+            assert v.time == t.time and t.name.endswith(v.name.lstrip("./") + ".png")
+
+
+def test_dnerf_writer_and_reader_round_trip(tmp_path):
+    """`transforms_for` + `write_transforms` (what `splatreel sample` writes) read back by `read_transforms`: the
+    same poses, intrinsics, sizes and times, and the image path with the .png the JSON leaves out."""
+    from types import SimpleNamespace
+
+    from splatreel.cameras import orbit
+    from splatreel.datasets.dnerf import read_transforms, transforms_for, write_transforms
+
+    cams = [orbit(20, a, 2.5, fov_deg=40, width=64, height=48, up="z") for a in (0, 90, 200)]
+    views = [SimpleNamespace(file_path=f"./train/r_{i:03d}", time=t, camera=c)
+             for i, (c, t) in enumerate(zip(cams, (0.0, 0.5, 1.0)))]
+    write_transforms(tmp_path / "transforms_train.json", transforms_for(views, cams[0]))
+    frames, _ = read_transforms(tmp_path / "transforms_train.json")
+    assert [f.time for f in frames] == [0.0, 0.5, 1.0] and all(f.size_declared for f in frames)
+    for f, v in zip(frames, views):
+        assert f.image == (tmp_path / "train" / f"{v.file_path[8:]}.png").resolve()
+        np.testing.assert_allclose(f.camera.c2w, v.camera.c2w, atol=1e-9)
+        assert (f.camera.width, f.camera.height) == (64, 48)
+        np.testing.assert_allclose([f.camera.fx, f.camera.fy, f.camera.cx, f.camera.cy],
+                                   [v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy], rtol=1e-9)
 
 @pytest.mark.parametrize("declared, expected", [([0, 0, 0], (0.0, 0.0, 0.0)), ("black", (0.0, 0.0, 0.0)),
                                                 ([0.5, 0.25, 1], (0.5, 0.25, 1.0)), ("White", (1.0, 1.0, 1.0))])

@@ -2,7 +2,9 @@
 
 Everything here works on plain numpy arrays of *rendered* Gaussians (already projected, culled and sorted front to
 back by `splatreel.train.rasterize`); M is their number, n the number of (tile, Gaussian) intersections, and every
-float is float32. The math is the reference 3DGS one (shared notes `rasterizer.md` §1.7-1.8):
+float is float32. The math is the reference 3DGS one (graphdeco-inria/diff-gaussian-rasterization
+``cuda_rasterizer/forward.cu`` ``renderCUDA`` and ``backward.cu``; gsplat ``gsplat/cuda/_torch_impl.py``
+``_rasterize_to_pixels``):
 
 * pixel (i, j) has its centre at (i + 0.5, j + 0.5); d = mean2d - centre;
 * sigma = 1/2 (a dx^2 + c dy^2) + b dx dy with the conic (a, b, c) = inverse 2D covariance;

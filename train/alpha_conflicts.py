@@ -29,7 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import Dataset, View, relative_name
+from splatreel.datasets import Dataset, DatasetImage
+
+from .data import relative_name
 
 #: Longer image side the masks are reduced to for the test.
 WORK_SIZE = 128
@@ -52,7 +54,7 @@ REGION_GROWTH = 0.04
 class _Camera:
     """One camera seen at several times, at the working resolution."""
 
-    view: View  # its first training view (pose, intrinsics, name)
+    view: DatasetImage  # its first training view (pose, intrinsics, name)
     solid: np.ndarray  # [h, w] bool, opaque in every image
     empty_distance: np.ndarray  # [h, w] float32 pixels to the nearest ever-opaque pixel (0 on them)
     colour: np.ndarray  # [h, w, 3] uint8 median image
@@ -103,7 +105,7 @@ class AlphaConflicts:
         """The largest share of a camera's image that conflicts (0 when nothing was tested)."""
         return max((c.share for c in self.cameras), default=0.0)
 
-    def weight(self, view: View) -> np.ndarray | None:
+    def weight(self, view: DatasetImage) -> np.ndarray | None:
         """``[H, W]`` float32 loss weight of a training image (0 on its transparent pixels in the conflict region,
         1 elsewhere), or None when nothing in it conflicts."""
         region = self.regions.get(view.view_id)
@@ -112,7 +114,7 @@ class AlphaConflicts:
         w = ~(region & (view.alpha < 128))
         return None if w.all() else w.astype(np.float32)
 
-    def conflict_share(self, views: list[View]) -> float:
+    def conflict_share(self, views: list[DatasetImage]) -> float:
         """Share of the pixels of `views` whose loss weight is 0."""
         total = sum(v.alpha.size for v in views if v.alpha is not None) or 1
         zero = sum(int((w == 0).sum()) for v in views if (w := self.weight(v)) is not None)
@@ -129,7 +131,7 @@ def _cameras(ds: Dataset) -> list[_Camera]:
     """The static masks of every camera that the training views show at two or more times."""
     import cv2
 
-    groups: dict[int, list[View]] = {}
+    groups: dict[int, list[DatasetImage]] = {}
     for v in ds.train:
         groups.setdefault(v.view_id, []).append(v)
     out = []
@@ -229,7 +231,7 @@ def find_alpha_conflicts(ds: Dataset, centre: np.ndarray | None = None, seed: in
     return result
 
 
-def describe(found: AlphaConflicts, strict: bool, views: list[View]) -> str:
+def describe(found: AlphaConflicts, strict: bool, views: list[DatasetImage]) -> str:
     """One line for the user: what was found and what training does about it."""
     if not found.checked:
         return f"alpha agreement not checked: {found.note}"

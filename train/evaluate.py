@@ -7,9 +7,9 @@ import time
 import numpy as np
 import torch
 
+from splatreel.datasets import DatasetImage
 from splatreel.model import Model
 
-from .data import View
 from .losses import psnr, ssim
 from .rasterize import rasterize
 
@@ -17,7 +17,7 @@ LPIPS_NOTE = ("LPIPS not computed: it needs pretrained network weights, which sp
               "which are not available locally")
 
 
-def view_target(view: View, background, device="cpu") -> tuple[torch.Tensor, torch.Tensor | None]:
+def view_target(view: DatasetImage, background, device="cpu") -> tuple[torch.Tensor, torch.Tensor | None]:
     """(RGB ``[H,W,3]`` composited on `background`, alpha ``[H,W]`` or None) as float32 tensors in [0, 1]."""
     rgb = torch.from_numpy(view.image).to(device=device, dtype=torch.float32) / 255.0
     if view.alpha is None:
@@ -27,13 +27,13 @@ def view_target(view: View, background, device="cpu") -> tuple[torch.Tensor, tor
     return rgb * a[..., None] + bg * (1 - a[..., None]), a
 
 
-def render_view(model: Model, view: View, background, device="cpu") -> torch.Tensor:
+def render_view(model: Model, view: DatasetImage, background, device="cpu") -> torch.Tensor:
     """``[H, W, 3]`` image of `model` at the view's camera and time."""
     with torch.no_grad():
         return rasterize(model.slice(view.time), view.camera, background).rgb
 
 
-def evaluate(model: Model, views: list[View], background, device="cpu", progress: bool = False) -> dict:
+def evaluate(model: Model, views: list[DatasetImage], background, device="cpu", progress: bool = False) -> dict:
     """Per-view and mean PSNR / SSIM of `model` rendered at `views` (top-level keys `psnr`, `ssim`, `lpips`,
     `per_view`, `seconds`)."""
     from tqdm import tqdm
@@ -53,10 +53,10 @@ def evaluate(model: Model, views: list[View], background, device="cpu", progress
     }
 
 
-def _same_camera(test: View, train: list[View]) -> list[View]:
+def _same_camera(test: DatasetImage, train: list[DatasetImage]) -> list[DatasetImage]:
     """The training views of the camera nearest to `test`'s (equal poses when the test camera is a training one;
     else the nearest centre, ties broken by viewing direction)."""
-    def distance(v: View) -> float:
+    def distance(v: DatasetImage) -> float:
         return float(np.linalg.norm(v.camera.position - test.camera.position)
                      + 0.1 * np.linalg.norm(v.camera.forward - test.camera.forward))
 
@@ -64,7 +64,7 @@ def _same_camera(test: View, train: list[View]) -> list[View]:
     return [v for v in train if distance(v) <= best + 1e-6]
 
 
-def baselines(views: list[View], train: list[View], background) -> dict:
+def baselines(views: list[DatasetImage], train: list[DatasetImage], background) -> dict:
     """PSNR of two trivial predictors of each view in `views`, from the training views of the same (or nearest)
     camera: its training image nearest in time (`nearest_image`), and its per-pixel median image
     (`median_image`). A trained model has to beat both by a wide margin to have learnt anything."""

@@ -8,9 +8,8 @@ import numpy as np
 import torch
 
 from splatreel import sh
+from splatreel.datasets import Dataset
 from splatreel.errors import SplatreelError
-
-from .data import Dataset
 
 
 def look_at_centre(ds: Dataset) -> np.ndarray:
@@ -67,15 +66,21 @@ def mesh_points(path: str, n: int, seed: int) -> tuple[torch.Tensor, torch.Tenso
     return torch.from_numpy(np.asarray(pts)).float(), torch.from_numpy(rgb).float()
 
 
-def knn(points: torch.Tensor, k: int = 3, chunk: int = 2048) -> tuple[torch.Tensor, torch.Tensor]:
-    """(indices ``[N, k]``, distances ``[N, k]``) of each point's k nearest other points (chunked exact search)."""
-    idx, dist = [], []
-    for i in range(0, points.shape[0], chunk):
-        d = torch.cdist(points[i:i + chunk], points)  # [c, N]
-        v, j = torch.topk(d, min(k + 1, points.shape[0]), largest=False)
-        idx.append(j[:, 1:])
-        dist.append(v[:, 1:])
-    return torch.cat(idx), torch.cat(dist)
+def knn(points: torch.Tensor, k: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
+    """(indices ``[N, k]``, distances ``[N, k]``) of each point's k nearest other points (fewer when N <= k).
+
+    An exact search in a k-d tree (scipy's ``cKDTree``, O(N log N), on every core), where a brute-force
+    ``torch.cdist`` is O(N^2) time; distances come back in the dtype of `points`."""
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    kk = min(k + 1, n)  # the point itself comes first
+    if kk < 2:
+        return torch.zeros((n, 0), dtype=torch.long), torch.zeros((n, 0), dtype=points.dtype)
+    xyz = points.detach().cpu().double().numpy()
+    dist, idx = cKDTree(xyz).query(xyz, k=list(range(1, kk + 1)), workers=-1)
+    return (torch.from_numpy(idx[:, 1:].astype(np.int64)).to(points.device),
+            torch.from_numpy(dist[:, 1:]).to(points.device, points.dtype))
 
 
 def nearest_neighbour_sq_dist(points: torch.Tensor, k: int = 3) -> torch.Tensor:

@@ -5,8 +5,10 @@ per-Gaussian screen radius, projected centre and visibility that densification n
 PyTorch autograd with respect to every tensor of the `Gaussians3D`, hence (through ``Gaussians4D.slice(t)``) to
 every parameter of a native 4D model.
 
-The math is the reference 3DGS one (shared notes `rasterizer.md` §1, `4dgs-core.md` §4.2-4.3), with the
-constants of `splatreel.constants`:
+The math is the reference 3DGS one (Kerbl et al. 2023, "3D Gaussian Splatting for Real-Time Radiance Field
+Rendering"; graphdeco-inria/diff-gaussian-rasterization ``cuda_rasterizer/forward.cu`` and ``auxiliary.h``, as
+vendored by fudan-zvg/4d-gaussian-splatting; gsplat ``gsplat/cuda/_torch_impl.py``), with the constants of
+`splatreel.constants`:
 
 1. **Projection** (plain torch, differentiable): world -> camera with the OpenCV ``w2c``; cull at
    ``z <= NEAR_PLANE``; EWA ``Σ2D = J W Σ Wᵀ Jᵀ`` with the Jacobian evaluated at x/z, y/z clamped to

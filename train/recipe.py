@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from splatreel.datasets import Dataset
+
 from .config import TrainConfig, preset
-from .data import Dataset
 from .points import find_point_cloud
 
 #: Layouts whose views come from a video-to-multi-view generator rather than a renderer or a capture.
@@ -39,7 +40,7 @@ class DataTraits:
     width: int
     height: int
     point_cloud: Path | None
-    #: The dataset's layout (`splatreel.train.data.LAYOUTS`).
+    #: The dataset's layout (`splatreel.datasets.LAYOUTS`).
     layout: str = "dnerf"
 
     @property

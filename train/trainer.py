@@ -20,6 +20,7 @@ from splatreel.cameras import DatasetView
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
 from splatreel.constants import TEMPORAL_CULL
 from splatreel.covariance import condition_on_time, temporal_marginal
+from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
 from splatreel.fileio import atomic_path
 from splatreel.model import Gaussians4D
@@ -28,7 +29,7 @@ from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import TrainConfig
 from .confidence import confidence_maps
-from .data import Dataset, View, downscale_view, relative_name
+from .data import downscale_view, relative_name
 from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball)
@@ -120,7 +121,7 @@ class Trainer:
         self.elapsed_before = 0.0  # seconds spent by the run before it was resumed
         self.step = 0
         self.losses: list[float] = []
-        self._views_at: dict[int, list[View]] = {1: dataset.train}
+        self._views_at: dict[int, list[DatasetImage]] = {1: dataset.train}
         self._conf = self._confidence() if config.confidence else {}
         self.alpha_conflicts: AlphaConflicts = find_alpha_conflicts(dataset)
         self._alpha_weight: dict[tuple[int, int], torch.Tensor | None] = {}
@@ -234,7 +235,7 @@ class Trainer:
         return Gaussians4D(**self.params, sh_degree=cfg.sh_degree, sh_degree_t=cfg.sh_degree_t,
                            time_range=self.time_range, rotation_convention=cfg.rotation_convention)
 
-    def _views(self, factor: int) -> list[View]:
+    def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
             self._views_at[factor] = [downscale_view(v, factor) for v in self.ds.train]
         return self._views_at[factor]

@@ -48,8 +48,9 @@ import torch
 
 from splatreel import quaternion
 from splatreel.checkpoint import LEGACY_NAME
-from splatreel.cameras import Camera, DatasetView, as_up, look_at_c2w, nerf_frame_camera, opengl_to_opencv
-from splatreel.errors import CameraError
+from splatreel.cameras import Camera, DatasetView, as_up, look_at_c2w, opengl_to_opencv
+from splatreel.datasets.dnerf import read_transforms, transforms_files
+from splatreel.errors import CameraError, DatasetError
 from splatreel.fileio import atomic_write_json
 
 from .panorama import PROJECTIONS
@@ -438,70 +439,21 @@ def nerfstudio_camera_path(cameras: Sequence[Camera], fps: float, times: Sequenc
 
 
 # --- training dataset cameras ----------------------------------------------------------------------------------
-def _transforms_files(path: Path, split: str | None) -> list[Path]:
-    if path.is_file():
-        return [path]
-    if not path.is_dir():
-        raise CameraError(f"{path}: no such dataset folder or transforms file")
-    splits = [split] if split else ["train", "val", "test"]
-    files = [path / f"transforms_{s}.json" for s in splits if (path / f"transforms_{s}.json").is_file()]
-    if not files and (path / "transforms.json").is_file():
-        files = [path / "transforms.json"]
-    if not files:
-        raise CameraError(f"{path}: no transforms_{split or 'train'}.json (D-NeRF / Blender dataset layout)")
-    return files
-
-
-def _image_size(root: Path, frame: dict, meta: dict) -> tuple[int, int] | None:
-    w = frame.get("w", meta.get("w"))
-    h = frame.get("h", meta.get("h"))
-    if w and h:
-        return int(w), int(h)
-    fp = frame.get("file_path")
-    if not fp:
-        return None
-    import cv2
-
-    for cand in (root / fp, root / f"{fp}.png", root / f"{fp}.jpg"):
-        if cand.is_file():
-            img = cv2.imread(str(cand), cv2.IMREAD_UNCHANGED)
-            if img is not None:
-                return img.shape[1], img.shape[0]
-    return None
-
-
 def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[DatasetView]:
-    """Cameras of a D-NeRF / Blender layout dataset (``transforms_<split>.json``; ``split=None``: all splits), or
-    the training cameras a splatreel checkpoint (``.safetensors``) records (`recorded_views`; any layout it was
-    trained on, `split` aside).
-
-    Poses are OpenGL camera-to-world ``transform_matrix``; intrinsics come from ``fl_x/fl_y/cx/cy`` or
-    ``camera_angle_x``; the image size from ``w/h`` or the first image (800x800 if neither is found).
+    """Cameras of a D-NeRF / Blender layout dataset (``transforms_<split>.json``; ``split=None``: all splits), read
+    by the trainer's reader (`splatreel.datasets.dnerf.read_transforms`: the same poses, intrinsics, image sizes
+    and times), or the training cameras a splatreel checkpoint (``.safetensors``) records (`recorded_views`; any
+    layout it was trained on, `split` aside). A bad dataset is a CameraError here, like any other camera source.
     """
     if Path(path).suffix.lower() == ".safetensors":
         if split not in ("train", None):
             raise CameraError(f"{path}: a checkpoint records its training cameras only, not a {split!r} split")
         return recorded_views(path)
-    views: list[DatasetView] = []
-    for f in _transforms_files(Path(path), split):
-        try:
-            meta = json.loads(f.read_text())
-            frames = meta["frames"]
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise CameraError(f"{f}: not a readable transforms file ({exc})") from None
-        size = None
-        for i, fr in enumerate(frames):
-            try:
-                if size is None or "w" in fr:
-                    size = _image_size(f.parent, fr, meta) or (800, 800)
-                cam = nerf_frame_camera(fr, meta, *size)
-            except (KeyError, TypeError, ValueError, CameraError) as exc:
-                raise CameraError(f"{f}: frame {i} has no usable camera ({exc})") from None
-            time = fr.get("time", i / max(len(frames) - 1, 1))
-            views.append(DatasetView(str(fr.get("file_path", f"{f.stem}/{i}")), cam, float(time)))
-    if not views:
-        raise CameraError(f"{path}: the dataset has no camera frames")
-    return views
+    try:
+        frames = [fr for f in transforms_files(Path(path), split) for fr in read_transforms(f)[0]]
+    except DatasetError as exc:
+        raise CameraError(str(exc)) from None
+    return [DatasetView(fr.file_path, fr.camera, fr.time) for fr in frames]
 
 
 def recorded_views(path: str | os.PathLike) -> list[DatasetView]:

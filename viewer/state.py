@@ -123,9 +123,9 @@ class AppState:
     # --- the model ----------------------------------------------------------------------------------------------
     def load(self, source) -> None:
         """Show a model file (or `Checkpoint`); on failure keep the current model and report the error."""
-        from splatreel.formats import load_model
+        from splatreel.formats import read_checkpoint
 
-        ckpt = load_model(source) if isinstance(source, (str, os.PathLike)) else source
+        ckpt = read_checkpoint(source) if isinstance(source, (str, os.PathLike)) else source
         model = ckpt.model
         first_load = self.renderer.model is None
         t0, t1 = model.time_range

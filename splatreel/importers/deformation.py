@@ -1,6 +1,7 @@
 """4DGaussians (hustvl) and 4DGen (VITA-Group) output folders, baked into `KeyframedGaussians`.
 
-Layout (shared notes ``formats.md`` A.1-A.5, B.5)::
+Layout (hustvl/4DGaussians ``train.py`` / ``scene/gaussian_model.py`` ``save_ply`` and ``save_deformation``;
+VITA-Group/4DGen writes the same)::
 
     <model>/cfg_args                                   # Namespace(...) repr: no_dx/no_ds/no_dr/no_do/no_dshs
     <model>/point_cloud/iteration_<N>/point_cloud.ply  # canonical Gaussians (3DGS PLY, raw values)

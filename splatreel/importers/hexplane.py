@@ -1,8 +1,9 @@
 """The HexPlane + MLP deformation field of 4DGaussians (hustvl) and 4DGen (VITA-Group), re-implemented in torch.
 
-Written from the documented architecture and state-dict keys (shared notes ``formats.md`` A.3-A.8, B.6); no
-upstream code. A `DeformationField` is parsed from a ``deformation.pth`` state dict; `deform` moves raw
-canonical Gaussians to time t.
+Written from the architecture and state-dict keys of hustvl/4DGaussians ``scene/deformation.py`` and
+``scene/hexplane.py`` (Wu et al. 2024, "4D Gaussian Splatting for Real-Time Dynamic Scene Rendering") and of
+VITA-Group/4DGen's variant of the same files; no upstream code. A `DeformationField` is parsed from a
+``deformation.pth`` state dict; `deform` moves raw canonical Gaussians to time t.
 
 Forward pass for a Gaussian at canonical position xyz and time t::
 

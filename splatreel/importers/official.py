@@ -1,6 +1,7 @@
 """Official native-4DGS checkpoints (``fudan-zvg/4d-gaussian-splatting``) and Efficient4D ``model.pth``.
 
-Both are ``torch.save`` pickles of ``GaussianModel.capture()`` (shared notes ``4dgs-core.md`` §2):
+Both are ``torch.save`` pickles of ``GaussianModel.capture()`` (fudan-zvg/4d-gaussian-splatting
+``scene/gaussian_model.py``, ``capture`` / ``restore``; ``train.py`` saves them):
 
 * official main / extension: ``(capture, iteration)`` in ``chkpnt<iter>.pth`` / ``chkpnt_best.pth``;
 * Efficient4D (the ``generation`` branch): the bare ``capture`` tuple in ``model.pth``.

@@ -10,7 +10,7 @@ colour, how many frames to bake). Commands expose them through one argparse help
         add_import_args(p)
 
     def run(args):
-        ckpt = load_model(args.checkpoint, **import_options(args))
+        ckpt = read_checkpoint(args.checkpoint, **import_options(args))
 
 Every value an importer had to assume is written as one line to stderr (logger ``splatreel.importers``) and
 recorded in ``provenance["assumed"]`` so that ``splatreel info`` shows it. This module imports nothing heavy: it
@@ -85,7 +85,7 @@ def add_import_args(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
 
 
 def import_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The import options the user gave on the command line, as keyword arguments for `load_model`."""
+    """The import options the user gave on the command line, as keyword arguments for `read_checkpoint`."""
     out = {}
     for name in IMPORT_OPTIONS:
         value = getattr(args, f"import_{name}", None)

@@ -10,8 +10,10 @@ The 3DGS layout (Inria ``save_ply``; 4DGaussians' ``point_cloud.ply``; the per-f
 * ``opacity`` is a logit, ``scale_*`` natural-log std-devs, ``rot_*`` an unnormalised (w, x, y, z) quaternion;
 * the normals are ignored. A single ``scale_0`` (isotropic Gaussians, as some 4DGen files) is used on all axes.
 
-The reader is plain numpy (binary little/big-endian and ASCII); properties may come in any order and any
-numeric type. Column names are defined here (`COLUMN_PREFIXES`); `splatreel.export.ply` writes the same layout.
+The file is parsed by plyfile (the library the 3DGS reference code reads and writes these files with,
+graphdeco-inria/gaussian-splatting ``scene/gaussian_model.py``): binary little/big-endian and ASCII; properties may
+come in any order and any numeric type. Column names are defined here (`COLUMN_PREFIXES`); `splatreel.export.ply`
+writes the same layout.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from plyfile import PlyData, PlyElementParseError, PlyHeaderParseError, PlyListProperty
 from torch import Tensor
 
 from ..checkpoint import Checkpoint
@@ -36,32 +39,11 @@ from ..quaternion import normalize
 from .common import natural_key, require_finite, static_model
 from .options import ImportRecord, check_options
 
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2",
-    "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4",
-    "double": "f8", "float64": "f8",
-}
 #: The 3DGS vertex properties splatreel reads (numbered ones are ``<prefix><i>``).
 COLUMN_PREFIXES = {"dc": "f_dc_", "rest": "f_rest_", "scale": "scale_", "rot": "rot_"}
-_MAX_HEADER = 1 << 20
 
 
 # --- generic PLY ----------------------------------------------------------------------------------------------
-@dataclass
-class PlyElement:
-    name: str
-    count: int
-    properties: list[tuple[str, str]]  # (name, numpy type) ; list properties have type "list"
-
-
-@dataclass
-class PlyHeader:
-    format: str  # "ascii" | "binary_little_endian" | "binary_big_endian"
-    elements: list[PlyElement]
-    comments: list[str]
-    data_offset: int
-
-
 def is_ply(path: Path) -> bool:
     try:
         with open(path, "rb") as f:
@@ -70,97 +52,35 @@ def is_ply(path: Path) -> bool:
         return False
 
 
-def read_ply_header(path: Path, data: bytes) -> PlyHeader:
-    """Parse the header at the start of `data` (the file's bytes); CheckpointError naming `path` if malformed."""
-    end = data.find(b"end_header", 0, _MAX_HEADER)
-    if not data.startswith(b"ply") or end < 0:
-        raise CheckpointError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
-    newline = data.find(b"\n", end)
-    offset = len(data) if newline < 0 else newline + 1
-    lines = data[:end].decode("ascii", errors="replace").splitlines()[1:]
-    fmt, elements, comments = None, [], []
-    for raw in lines:
-        parts = raw.split()
-        if not parts:
-            continue
-        key = parts[0]
-        if key == "format" and len(parts) >= 2:
-            fmt = parts[1]
-        elif key in ("comment", "obj_info"):
-            comments.append(raw.split(None, 1)[1] if len(parts) > 1 else "")
-        elif key == "element" and len(parts) == 3:
-            try:
-                elements.append(PlyElement(parts[1], int(parts[2]), []))
-            except ValueError:
-                raise CheckpointError(f"{path}: bad PLY header line {raw!r}") from None
-        elif key == "property" and elements:
-            if len(parts) >= 5 and parts[1] == "list":
-                elements[-1].properties.append((parts[4], "list"))
-            elif len(parts) == 3 and parts[1] in _PLY_TYPES:
-                elements[-1].properties.append((parts[2], _PLY_TYPES[parts[1]]))
-            else:
-                raise CheckpointError(f"{path}: unsupported PLY property line {raw!r}")
-        else:
-            raise CheckpointError(f"{path}: bad PLY header line {raw!r}")
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise CheckpointError(f"{path}: unknown PLY format {fmt!r}")
-    return PlyHeader(fmt, elements, comments, offset)
+def sniff_ply(path: Path) -> bool:
+    """One PLY file (the ``ply`` reader of `splatreel.formats`)."""
+    return path.is_file() and is_ply(path)
 
 
-def read_ply_vertices(path: Path) -> tuple[dict[str, np.ndarray], PlyHeader]:
-    """The ``vertex`` element of a PLY file as {property name: ``[N]`` array}, and the header."""
+def read_ply_vertices(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+    """The ``vertex`` element of a PLY file as {property name: ``[N]`` array}, and the header's comments (and
+    obj_info lines). Parsing is plyfile's: binary (either endianness) or ASCII, any property order and numeric
+    type, other elements before or after; its errors become one-line CheckpointErrors naming `path`."""
     try:
-        data = Path(path).read_bytes()
+        ply = PlyData.read(str(path), mmap=False)
     except OSError as exc:
         raise CheckpointError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    header = read_ply_header(path, data)
-    names = [e.name for e in header.elements]
-    if "vertex" not in names:
+    except PlyHeaderParseError as exc:
+        raise CheckpointError(f"{path}: not a readable PLY header ({exc})") from None
+    except PlyElementParseError as exc:
+        what = "truncated PLY" if "end-of-file" in str(exc) else "malformed PLY data"
+        raise CheckpointError(f"{path}: {what} ({exc})") from None
+    except ValueError as exc:  # e.g. a repeated property name
+        raise CheckpointError(f"{path}: malformed PLY ({exc})") from None
+    if "vertex" not in [e.name for e in ply.elements]:
         raise CheckpointError(f"{path}: PLY has no 'vertex' element")
-    index = names.index("vertex")
-    vertex = header.elements[index]
-    if any(t == "list" for _, t in vertex.properties):
+    vertex = ply["vertex"]
+    if any(isinstance(p, PlyListProperty) for p in vertex.properties):
         raise CheckpointError(f"{path}: PLY vertex element has list properties; not a splat file")
-    props = [p for p, _ in vertex.properties]
-    if len(set(props)) != len(props):
-        raise CheckpointError(f"{path}: PLY vertex element repeats a property name")
-    if header.format == "ascii":
-        return _read_ascii(path, data, header, index), header
-    before = header.elements[:index]
-    if any(t == "list" for e in before for _, t in e.properties):
-        raise CheckpointError(f"{path}: binary PLY with list properties before the vertex element is not "
-                              f"supported")
-    order = "<" if header.format == "binary_little_endian" else ">"
-
-    def dtype(e: PlyElement) -> np.dtype:
-        return np.dtype([(p, order + t) for p, t in e.properties])
-
-    offset = header.data_offset + sum(dtype(e).itemsize * e.count for e in before)
-    vt = dtype(vertex)
-    need = offset + vt.itemsize * vertex.count
-    if len(data) < need:
-        raise CheckpointError(f"{path}: truncated PLY: {vertex.count} vertices need {need} bytes, the file has "
-                              f"{len(data)}")
-    table = np.frombuffer(data, dtype=vt, count=vertex.count, offset=offset)
-    return {p: table[p].astype(table[p].dtype.newbyteorder("=")) for p in props}, header
-
-
-def _read_ascii(path: Path, data: bytes, header: PlyHeader, index: int) -> dict[str, np.ndarray]:
-    lines = data[header.data_offset:].decode("ascii", errors="replace").splitlines()
-    skip = sum(e.count for e in header.elements[:index])  # one line per item of the elements before
-    vertex = header.elements[index]
-    rows = lines[skip:skip + vertex.count]
-    width = len(vertex.properties)
-    if len(rows) < vertex.count:
-        raise CheckpointError(f"{path}: truncated PLY: expected {vertex.count} vertex lines, found {len(rows)}")
-    try:
-        values = np.array(" ".join(rows).split(), dtype=np.float64)
-    except ValueError:
-        raise CheckpointError(f"{path}: PLY vertex data holds a value that is not a number") from None
-    if values.size != vertex.count * width:
-        raise CheckpointError(f"{path}: PLY vertex lines should hold {width} values each")
-    values = values.reshape(vertex.count, width)
-    return {p: values[:, i].astype(t) for i, (p, t) in enumerate(vertex.properties)}
+    table = vertex.data
+    cols = {p.name: np.ascontiguousarray(table[p.name]).astype(table[p.name].dtype.newbyteorder("="))
+            for p in vertex.properties}
+    return cols, list(ply.comments) + list(ply.obj_info)
 
 
 # --- 3DGS columns -------------------------------------------------------------------------------------------
@@ -234,8 +154,8 @@ def splat_columns(path: Path, cols: dict[str, np.ndarray], comments: list[str] |
 
 def read_splat_ply(path: Path) -> SplatColumns:
     """Read a 3DGS PLY file into raw tensors."""
-    cols, header = read_ply_vertices(path)
-    return splat_columns(path, cols, header.comments)
+    cols, comments = read_ply_vertices(path)
+    return splat_columns(path, cols, comments)
 
 
 def truncate_sh(cols: SplatColumns, record: ImportRecord) -> tuple[Tensor, int]:

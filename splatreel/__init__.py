@@ -17,7 +17,7 @@ _EXPORTS = {
     "cameras": ("Camera", "look_at", "orbit"),
     "checkpoint": ("Checkpoint", "load_checkpoint", "save_checkpoint"),
     "errors": ("CheckpointError", "SplatreelError"),
-    "formats": ("load_model",),
+    "formats": ("read_checkpoint",),
     "model": ("Gaussians3D", "Gaussians4D", "KeyframedGaussians", "Model"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}

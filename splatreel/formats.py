@@ -152,7 +152,3 @@ def read_checkpoint(path: str | os.PathLike, **options: Any) -> Checkpoint:
             return r.read_checkpoint(path, **options)
     known = "; ".join(r.description for r in _READERS)
     raise CheckpointError(f"{path}: unknown model format (supported: {known})")
-
-
-#: The former name of `read_checkpoint`, kept until `splatreel.cli` and `splatreel/__init__.py` call the new one.
-load_model = read_checkpoint

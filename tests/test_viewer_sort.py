@@ -122,7 +122,9 @@ def test_culling_drops_only_invisible_gaussians():
     full = render_image(model, cam, 0.5, RenderSettings(transparent=True))
     kept = render_image(g.select(torch.as_tensor(res.order.astype(np.int64))), cam, 0.5,
                         RenderSettings(transparent=True))
-    np.testing.assert_allclose(kept, full, atol=2e-5)  # float32 slices vs float64 conditioning
+    # float32 slices vs float64 conditioning (Mesa versions differ by a few 1e-5); a wrongly dropped Gaussian would
+    # change its pixels by at least its cut-off alpha, 1/255
+    np.testing.assert_allclose(kept, full, atol=1e-4)
     # the screen boxes hold every pixel a Gaussian touches: render each of a few alone and look outside its box
     for i in range(0, res.visible, max(1, res.visible // 8)):
         alone = render_image(g.select(torch.tensor([int(res.order[i])])), cam, 0.5, RenderSettings(transparent=True))

@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from ..checkpoint import SUFFIX, save_checkpoint
     from ..errors import SplatreelError
     from ..fileio import check_writable
-    from ..formats import load_model
+    from ..formats import read_checkpoint
     from ..importers import import_options
     from ..model import CropBox
     from ._shared_options import apply_crop
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         raise SplatreelError(f"{out}: the output must be a {SUFFIX} file")
     check_writable(out, args.force)  # fail before a long import
     box = CropBox.of(args.crop) if args.crop is not None else None
-    ckpt = load_model(args.input, **import_options(args))
+    ckpt = read_checkpoint(args.input, **import_options(args))
     model = ckpt.model.to(dtype=getattr(torch, args.dtype))
     provenance = dict(ckpt.provenance) or {"source": str(Path(args.input).resolve()), "reader": "splatreel"}
     if box is not None:

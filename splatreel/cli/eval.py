@@ -24,13 +24,13 @@ def add_args(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from splatreel.errors import DatasetError
     from splatreel.fileio import atomic_write_json, check_writable
-    from splatreel.formats import load_model
+    from splatreel.formats import read_checkpoint
     from splatreel.train.data import load_dataset
     from splatreel.train.evaluate import evaluate
 
     if args.out:
         check_writable(args.out, args.force)
-    ck = load_model(args.checkpoint)
+    ck = read_checkpoint(args.checkpoint)
     ds = load_dataset(args.data, layout=args.layout, downscale=args.downscale)
     views = ds.test if args.split == "test" else ds.train
     if not views:

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..export import ExportError, exporters, frame_times
     from ..fileio import check_writable
-    from ..formats import load_model
+    from ..formats import read_checkpoint
     from ._shared_options import apply_crop
 
     check_writable(args.out, args.force)  # refuse before loading anything
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         raise ExportError(f"--fps and --meters-per-unit must be positive, got {args.fps} and {args.meters_per_unit}")
     if args.frame_count is not None and args.frame_count < 1:
         raise ExportError(f"--frame-count must be a positive integer, got {args.frame_count}")
-    ckpt = load_model(args.checkpoint)
+    ckpt = read_checkpoint(args.checkpoint)
     model = apply_crop(ckpt.model, args.crop)
     frames = args.frame_count if args.frame_count is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
     times = frame_times(model.time_range, frames, args.start, args.end)

@@ -22,7 +22,7 @@ def summarize(path, **options) -> dict:
     """The facts `info` prints, as a JSON-able dict (`options`: import options for other tools' files).
 
     A valid splatreel checkpoint is read with NumPy (`splatreel.checkpoint_numpy`), so that ``info`` starts without
-    torch; any other file, or one that is damaged, goes through `splatreel.formats.load_model`, which reads every
+    torch; any other file, or one that is damaged, goes through `splatreel.formats.read_checkpoint`, which reads every
     format and names what is wrong."""
     from ..checkpoint_numpy import read_numpy_checkpoint
 
@@ -45,10 +45,10 @@ def _facts_of_numpy(ckpt) -> dict:
 
 
 def _facts_of_model(path, options: dict) -> dict:
-    from ..formats import load_model
+    from ..formats import read_checkpoint
     from ..model import model_bounds
 
-    ckpt = load_model(path, **options)
+    ckpt = read_checkpoint(path, **options)
     model = ckpt.model
     lo, hi = model_bounds(model)
     std, opacity = _sizes_and_opacities(model)

@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from splatreel.fileio import atomic_write_json, check_writable
-    from splatreel.formats import load_model
+    from splatreel.formats import read_checkpoint
     from splatreel.samples.trained import trained_checkpoint
     from splatreel.viewer.camera_path import nerfstudio_camera_path
     from splatreel.viewer.headless import render_to_file
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         if Path(args.save_cameras).resolve() == Path(args.out).resolve():
             raise OptionError(f"--save-cameras {args.save_cameras} is the --out file; give the cameras a file of "
                               "their own")
-    ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
+    ckpt = read_checkpoint(args.checkpoint or str(trained_checkpoint("spinner")))
     model = apply_crop(ckpt.model, args.crop)
     settings = look_settings(args, ckpt.background, value_range=args.map_range)
     job = plan_render(request, model, load_camera_path(request, model.time_range), settings)

@@ -82,7 +82,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from splatreel.fileio import check_writable
-    from splatreel.formats import load_model
+    from splatreel.formats import read_checkpoint
     from splatreel.samples.trained import trained_checkpoint
     from splatreel.viewer.app import AppOptions, run_app
     from splatreel.viewer.camera_path import CameraPath, dataset_views
@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
         CameraPath.load(args.path)
     if args.cameras:
         dataset_views(args.cameras, args.split)
-    ckpt = load_model(args.checkpoint or str(trained_checkpoint("spinner")))
+    ckpt = read_checkpoint(args.checkpoint or str(trained_checkpoint("spinner")))
     check_crop(ckpt.model, args.crop)  # a bad box, or one that misses the model
     report = run_app(ckpt, options)
     if args.exit_after is not None:

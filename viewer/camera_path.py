@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 from splatreel import quaternion
-from splatreel.checkpoint import LEGACY_NAME
+from splatreel.checkpoint_file import LEGACY_NAME
 from splatreel.cameras import Camera, DatasetView, as_up, look_at_c2w, opengl_to_opencv
 from splatreel.datasets.dnerf import read_transforms, transforms_files
 from splatreel.errors import CameraError, DatasetError
@@ -459,7 +459,7 @@ def dataset_views(path: str | os.PathLike, split: str | None = "train") -> list[
 def recorded_views(path: str | os.PathLike) -> list[DatasetView]:
     """The training cameras recorded in the splatreel checkpoint `path` (`splatreel.checkpoint`), read from its
     metadata alone; CameraError (one line) when it records none."""
-    from splatreel.checkpoint import read_metadata, views_in_metadata
+    from splatreel.checkpoint_file import read_metadata, views_in_metadata
     from splatreel.errors import CheckpointError
 
     try:

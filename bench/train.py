@@ -97,7 +97,7 @@ def main() -> None:
     import torch
 
     from splatreel.samples import SAMPLES, SCENES
-    from splatreel.samples.dataset import write_dataset
+    from splatreel.samples import write_dataset
     from splatreel.train.alpha_conflicts import describe
     from splatreel.train.data import load_dataset
     from splatreel.train.evaluate import baselines, evaluate

@@ -17,12 +17,11 @@ model is built too: the objects from their motion plus a static floor where the 
 >>> path = trained_checkpoint("spinner")                      # bundled checkpoint trained on the spinner dataset
 """
 
-from .dataset import DatasetConfig, SampleView, test_views, train_times, train_views, transforms_json, write_dataset
+from .catalog import OBJECTS, SAMPLES, build_model, get_sample, mesh_at, object_bounds, object_center, write_dataset
+from .dataset import DatasetConfig, SampleView, test_views, train_times, train_views, transforms_json
 from .floor import SCENES, FloorConfig, FloorScene
-from .gaussians import build_model
 from .geometry import Mesh
-from .objects import (BOUNDING_RADIUS, OBJECTS, SAMPLES, SampleConfigError, SampleObject, UnknownSampleError,
-                      get_sample, mesh_at, object_bounds, object_center)
+from .objects import BOUNDING_RADIUS, SampleConfigError, SampleObject, UnknownSampleError
 from .render import MeshRenderer, shade
 from .trained import TRAINED, trained_checkpoint
 

@@ -37,7 +37,7 @@ from splatreel.datasets.dnerf import clean_number, transforms_for, write_transfo
 from splatreel.errors import SplatreelError
 from splatreel.fileio import atomic_dir, check_writable
 
-from .objects import OBJECTS, SampleConfigError, SampleObject, get_sample
+from .objects import SampleConfigError, SampleObject
 from .render import AMBIENT, DIFFUSE, FAR, LIGHT_DIR, MeshRenderer
 
 #: Bump when the rendered bytes of a sample change (geometry, colours, lighting, cameras, antialiasing).
@@ -79,7 +79,7 @@ class DatasetConfig:
                 raise SampleConfigError(msg)
 
         need(1 <= self.views <= 1000, f"--views must be 1..1000, got {self.views}")
-        need(1 <= self.frames <= 1000, f"--frames must be 1..1000, got {self.frames}")
+        need(1 <= self.frames <= 1000, f"--time-steps must be 1..1000, got {self.frames}")
         need(8 <= self.size <= 4096, f"--size must be 8..4096 pixels, got {self.size}")
         need(0 <= self.test_views <= 1000, f"--test-views must be 0..1000, got {self.test_views}")
         need(math.isfinite(self.elevation) and -90.0 <= self.elevation <= 90.0,
@@ -183,25 +183,12 @@ def write_png(path: Path, rgba: np.ndarray) -> None:
         raise SplatreelError(f"{path}: could not write PNG")
 
 
-def write_dataset(name: str, out: str | os.PathLike, config: DatasetConfig | None = None, force: bool = False,
-                  progress: bool = False, renderer: MeshRenderer | None = None) -> Path:
-    """Render sample `name` to a D-NeRF layout dataset folder `out` (atomically; see module doc).
-
-    Args:
-        name: a key of `SAMPLES`, or of `SCENES` (a scene brings its own camera rig and config type, e.g.
-            ``floor`` takes a `FloorConfig`; see `splatreel.samples.floor`).
-        out: destination folder; refused if it exists unless `force`.
-        config: cameras, times and image size (defaults: 16 views x 16 frames at 256 px, 16 test images).
-        progress: show a tqdm bar over images.
-        renderer: reuse a `MeshRenderer` (its context and antialiasing); a default one is made when None.
-    Returns:
-        The dataset folder.
-    """
-    obj = get_sample(name)
-    if name not in OBJECTS:  # a scene: its own rig, config and sample.json
-        return obj.write_dataset(out, config, force=force, progress=progress, renderer=renderer)
+def write_object_dataset(obj: SampleObject, out: str | os.PathLike, config: DatasetConfig | None = None,
+                         force: bool = False, progress: bool = False, renderer: MeshRenderer | None = None) -> Path:
+    """Render sample object `obj` on the orbit rig of `config` to a D-NeRF layout dataset folder `out` (atomically;
+    see module doc and `splatreel.samples.write_dataset`)."""
     if config is not None and not isinstance(config, DatasetConfig):
-        raise SampleConfigError(f"sample {name!r} takes a DatasetConfig, got {type(config).__name__}")
+        raise SampleConfigError(f"sample {obj.name!r} takes a DatasetConfig, got {type(config).__name__}")
     config = config or DatasetConfig()
     train, test = train_views(config), test_views(config)
     return write_layout(out, obj, train, test, _camera(config, config.elevation, 0.0),

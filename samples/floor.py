@@ -114,7 +114,7 @@ class FloorConfig:
                 raise SampleConfigError(msg)
 
         need(NUM_CAMERAS <= self.frames <= 1000,
-             f"--frames must be {NUM_CAMERAS}..1000 for sample floor (each of its {NUM_CAMERAS} cameras sees one "
+             f"--time-steps must be {NUM_CAMERAS}..1000 for sample floor (each of its {NUM_CAMERAS} cameras sees one "
              f"frame in turn), got {self.frames}")
         need(8 <= self.size <= 4096, f"--size must be 8..4096 pixels, got {self.size}")
         need(0 <= self.test_views <= 1000, f"--test-views must be 0..1000, got {self.test_views}")

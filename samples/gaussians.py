@@ -40,7 +40,6 @@ from splatreel.covariance import covariance_4d_from_motion, decompose_covariance
 from splatreel.model import Gaussians4D
 
 from .geometry import Mesh, face_areas, farthest_point_subset, points_on_surface, sample_surface
-from .objects import OBJECTS, SampleConfigError, get_sample
 from .render import shade
 
 #: Tangent std-dev of a disc as a fraction of the local point spacing sqrt(area per point).
@@ -69,31 +68,6 @@ def disc_covariances(normals: np.ndarray, std: np.ndarray) -> np.ndarray:
     nn = normals[:, :, None] * normals[:, None, :]
     var = (std * std)[:, None, None]
     return var * (np.eye(3) - nn) + (DISC_THICKNESS ** 2) * var * nn
-
-
-def build_model(name: str, num_gaussians: int | None = None, frames: int | None = None, seed: int = 0,
-                config=None) -> Gaussians4D:
-    """A `Gaussians4D` (float32, SH degree 0, 'current' convention, time_range (0, 1)) reproducing sample `name`.
-
-    Args:
-        name: a key of `SAMPLES`, or of `SCENES` (a scene builds its own model: ``floor`` adds a static floor to
-            its objects, see `splatreel.samples.floor`).
-        num_gaussians: number of Gaussians in the model (points x segments; see module doc); None: the sample's
-            default (`DEFAULT_GAUSSIANS` for an object).
-        frames: key times ``k / (frames - 1)`` (>= 2); more keys follow curved motion more closely. None: 16 for
-            an object, the dataset's frames for a scene.
-        seed: random seed of the surface sampling (same seed, same model).
-        config: a scene's dataset config (its camera rig decides which floor is seen); unused by objects.
-    """
-    if frames is not None and frames < 2:
-        raise SampleConfigError(f"frames must be >= 2 to build a model, got {frames}")
-    if num_gaussians is not None and num_gaussians < 1:
-        raise SampleConfigError(f"num_gaussians must be >= 1, got {num_gaussians}")
-    obj = get_sample(name)
-    if name not in OBJECTS:  # a scene: its own parts and rig (as write_dataset hands scenes their own writer)
-        return obj.build_model(num_gaussians, frames, seed, config)
-    return motion_model(obj.mesh, DEFAULT_GAUSSIANS if num_gaussians is None else num_gaussians,
-                        DEFAULT_FRAMES if frames is None else frames, seed)
 
 
 def motion_model(mesh_at: Callable[[float], Mesh], num_gaussians: int, frames: int, seed: int,

@@ -562,3 +562,18 @@ def test_the_splat_prim_falls_back_to_points_only_where_the_schema_is_unknown(us
     points = UsdGeom.Points(prim)
     np.testing.assert_array_equal(_np(points.GetPointsAttr().Get(1)), _np(prim.GetAttribute("positions").Get(1)))
     assert len(points.GetWidthsAttr().Get(1)) == len(points.GetPointsAttr().Get(1))
+
+
+def test_a_sample_model_exports_z_up_without_options(tmp_path, capsys):
+    """``sample --model`` records the samples' +Z up; every exporter then declares it (USD upAxis, manifests)."""
+    from pxr import Usd, UsdGeom
+
+    ckpt = tmp_path / "spinner.safetensors"
+    assert main(["sample", "spinner", "--model", str(ckpt), "--gaussians", "300"]) == 0
+    assert main(["export", "usd", str(ckpt), "--out", str(tmp_path / "s.usda"), "--frame-count", "2", "--quiet"]) == 0
+    assert UsdGeom.GetStageUpAxis(Usd.Stage.Open(str(tmp_path / "s.usda"))) == "Z"
+    assert main(["export", "ply", str(ckpt), "--out", str(tmp_path / "ply"), "--frame-count", "2", "--quiet"]) == 0
+    assert json.loads((tmp_path / "ply" / "manifest.json").read_text())["up_axis"] == "Z"
+    capsys.readouterr()
+    assert main(["sample", "spinner", "--model", str(tmp_path / "none.safetensors"), "--gaussians", "0"]) == 1
+    assert "--gaussians must be at least 1" in capsys.readouterr().err

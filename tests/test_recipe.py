@@ -22,7 +22,7 @@ from splatreel.train.trainer import Trainer
 @pytest.fixture(scope="module")
 def matrix(tmp_path_factory):
     """A bounded object as an image matrix: 4 views x 3 frames at 64 px, transparent around it."""
-    from splatreel.samples.dataset import DatasetConfig, write_dataset
+    from splatreel.samples import DatasetConfig, write_dataset
 
     root = tmp_path_factory.mktemp("data") / "spinner"
     write_dataset("spinner", root, DatasetConfig(views=4, frames=3, size=64, test_views=4))

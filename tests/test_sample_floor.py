@@ -189,7 +189,7 @@ def test_dataset_is_deterministic(dataset, tmp_path, renderer):
 
 
 def test_config_errors(tmp_path):
-    for kwargs, flag in [(dict(frames=11), "--frames"), (dict(size=4), "--size"), (dict(test_views=-1),
+    for kwargs, flag in [(dict(frames=11), "--time-steps"), (dict(size=4), "--size"), (dict(test_views=-1),
                                                                                       "--test-views"),
                          (dict(fov=float("nan")), "--fov")]:
         with pytest.raises(SampleConfigError, match=flag):

@@ -20,7 +20,7 @@ from splatreel.train.trainer import Trainer, state_path
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A procedural sample: 4 views x 3 frames at 64x64."""
-    from splatreel.samples.dataset import DatasetConfig, write_dataset
+    from splatreel.samples import DatasetConfig, write_dataset
 
     root = tmp_path_factory.mktemp("data") / "spinner"
     write_dataset("spinner", root, DatasetConfig(views=4, frames=3, size=64, test_views=4))

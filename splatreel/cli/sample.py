@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         background = (1.0, 1.0, 1.0) if scene else (0.0, 0.0, 0.0)
         save_checkpoint(args.model, model, background=background,
                         provenance={"tool": "splatreel sample", "sample": args.name, "frames": config.frames,
-                                    "seed": args.seed}, force=args.force)
+                                    "seed": args.seed, "up_axis": "z"}, force=args.force)  # samples are +Z up
         print(f"wrote {args.model}: {len(model):,} Gaussians from sample {args.name!r}")
     if bundled is not None:
         from ..fileio import atomic_write_bytes

@@ -41,25 +41,27 @@ def frame_times(time_range: tuple[float, float], frames: int, start: float | Non
     """``[F]`` float64 model times of the exported frames (see module doc).
 
     Raises:
-        ExportError: `frames` < 1, start > end, or start/end outside `time_range`.
+        ExportError: `frames` < 1, start > end, or a start/end that is not a number. A start/end outside
+        `time_range` is exported as asked, with a warning (`splatreel.argtypes.warn_outside_time_range`).
     """
+    from splatreel.argtypes import warn_outside_time_range
+
     t0, t1 = float(time_range[0]), float(time_range[1])
     if int(frames) != frames or frames < 1:
-        raise ExportError(f"--frames must be a positive integer, got {frames}")
+        raise ExportError(f"--frame-count must be a positive integer, got {frames}")
     a = t0 if start is None else float(start)
     b = t1 if end is None else float(end)
-    # a tiny tolerance so that a user typing the printed range back is not refused for rounding
-    tol = 1e-9 * max(1.0, abs(t0), abs(t1))
     for name, v in (("--start", a), ("--end", b)):
-        if not np.isfinite(v) or v < t0 - tol or v > t1 + tol:
-            raise ExportError(f"{name} {v:g} is outside the model's time range [{t0:g}, {t1:g}]")
+        if not np.isfinite(v):
+            raise ExportError(f"{name} must be a number, got {v}")
+        warn_outside_time_range(v, (t0, t1), name)
     if a > b:
         raise ExportError(f"--start {a:g} is after --end {b:g}")
     if frames > 1 and a == b:
         raise ExportError(f"--start equals --end ({a:g}) but {frames} frames were asked for")
     if frames == 1:
         return np.array([a], dtype=np.float64)
-    return np.clip(a + (b - a) * np.arange(frames, dtype=np.float64) / (frames - 1), t0, t1)
+    return np.clip(a + (b - a) * np.arange(frames, dtype=np.float64) / (frames - 1), a, b)  # no rounding past b
 
 
 def time_step(times: Sequence[float]) -> float:

@@ -366,19 +366,24 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
 
 def add_args(p: argparse.ArgumentParser) -> None:
     """The format's own options of ``splatreel export mesh`` (its entry in `splatreel.formats`)."""
+    from splatreel.argtypes import count, positive_number
+
     p.add_argument("--format", choices=MESH_FORMATS, default="ply", help="per-frame mesh format (default ply)")
-    p.add_argument("--resolution", type=int, default=128,
+    p.add_argument("--resolution", type=count, default=128,
                    help="voxels along the longest side of the grid shared by all frames (default 128)")
-    p.add_argument("--iso", type=float, default=0.5, help="density level of the surface (default 0.5)")
+    p.add_argument("--iso", type=positive_number, default=0.5, help="density level of the surface (default 0.5)")
     p.add_argument("--no-fill", action="store_true",
                    help="keep cavities enclosed by the surface empty (default: fill them, one surface per solid)")
-    p.add_argument("--color-neighbors", type=int, default=8,
+    p.add_argument("--color-neighbors", type=count, default=8,
                    help="nearest Gaussians blended into each vertex colour (default 8)")
     p.add_argument("--no-usd", action="store_true", help="do not write mesh_sequence.usd")
 
 
 def run(model, times, out, args) -> list[Path]:
     """``splatreel export mesh``: write `model` at `times` to `out` as the parsed `args` say."""
+    if Path(out).suffix.lower() in (".ply", ".obj", ".glb", ".usd", ".usdc", ".usda"):
+        raise ExportError(f"{out}: export mesh writes a folder (mesh_000000.{args.format} ..., mesh_sequence.usd and "
+                          "manifest.json): give a folder name")
     options = MeshOptions(format=args.format, resolution=args.resolution, iso=args.iso, fill=not args.no_fill,
                           color_neighbors=args.color_neighbors, usd=not args.no_usd, fps=args.fps,
                           up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)),

@@ -15,7 +15,7 @@ from typing import Sequence
 from splatreel.fileio import atomic_dir
 from splatreel.ply_layout import OPACITY_EPS, ply_bytes, splats_to_ply_records
 
-from .base import SplatFrame, frame_file_name, iter_frames, manifest, resolve_up_axis
+from .base import ExportError, SplatFrame, frame_file_name, iter_frames, manifest, resolve_up_axis
 
 
 def frame_ply_bytes(frame: SplatFrame, drop_invisible: bool = False) -> bytes:
@@ -56,7 +56,16 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(model, times, out, args) -> list[Path]:
-    """``splatreel export ply``: write `model` at `times` to `out` as the parsed `args` say."""
+    """``splatreel export ply``: write `model` at `times` to `out` as the parsed `args` say: a folder, or one
+    ``.ply`` file when `out` is named so and one frame is asked for."""
+    if Path(out).suffix.lower() == ".ply":
+        if len(times) != 1:
+            raise ExportError(f"{out}: export ply writes a folder of {len(times)} frames (frame_000000.ply ... and "
+                              "manifest.json): give a folder name, or --frame-count 1 for one .ply file")
+        from splatreel.fileio import atomic_write_bytes
+
+        frame = next(iter_frames(model, times))
+        return [atomic_write_bytes(out, frame_ply_bytes(frame, args.drop_invisible), args.force)]
     return write_ply_sequence(model, out, times, fps=args.fps, drop_invisible=args.drop_invisible,
                               force=args.force, progress=args.progress,
                               up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)))

@@ -98,7 +98,7 @@ class UsdOptions:
     def __post_init__(self) -> None:
         parse_what(",".join(self.what))  # raises on unknown kinds
         if self.up_axis not in ("Y", "Z"):
-            raise ExportError(f"--up-axis must be Y or Z, got {self.up_axis!r}")
+            raise ExportError(f"--up must be y or z for USD, got {self.up_axis!r}")
         for name in ("fps", "meters_per_unit", "instance_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
@@ -443,9 +443,11 @@ def write_usd(model, path: str | Path, times: Sequence[float], options: UsdOptio
 
 def add_args(p: argparse.ArgumentParser) -> None:
     """The format's own options of ``splatreel export usd`` (its entry in `splatreel.formats`)."""
+    from splatreel.argtypes import positive_number
+
     p.add_argument("--what", default=",".join(USD_PRIM_KINDS), metavar="KINDS",
                    help=f"comma-separated prim kinds to write, from {','.join(USD_PRIM_KINDS)} (default: all)")
-    p.add_argument("--instance-sigmas", type=float, default=2.0,
+    p.add_argument("--instance-sigmas", type=positive_number, default=2.0,
                    help="instancer spheres are the k-sigma ellipsoids; points are 2k mean-sigma wide (default 2)")
 
 

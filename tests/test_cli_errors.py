@@ -34,3 +34,30 @@ def test_a_reader_that_goes_away_ends_the_command_quietly():
     proc.stdout.close()  # before the command writes anything
     err = proc.stderr.read().decode()
     assert proc.wait() == 1 and "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["render", "--out", "x.mp4", "--seconds", "0"], "--seconds"),
+    (["render", "--out", "x.mp4", "--seconds", "-1"], "--seconds"),
+    (["render", "--out", "x.mp4", "--loop-seconds", "nan"], "--loop-seconds"),
+    (["view", "--exit-after", "0"], "--exit-after"),
+    (["export", "usd", "m", "--out", "x.usdc", "--fps", "0"], "--fps"),
+    (["sample", "spinner", "--out", "d", "--views", "0"], "--views"),
+    (["train", "d", "--out", "m", "--iters", "-5"], "--iters"),
+    (["train", "d", "--out", "m", "--smooth-weight", "-1"], "--smooth-weight"),
+    (["eval", "m", "d", "--downscale", "0"], "--downscale"),
+])
+def test_meaningless_numbers_are_refused_by_name(argv, option, capsys):
+    with pytest.raises(SystemExit):
+        main(argv)
+    err = capsys.readouterr().err
+    assert f"argument {option}" in err and err.count("\n") == 1, err
+
+
+def test_a_time_outside_the_models_range_is_drawn_with_a_warning(tmp_path):
+    out = tmp_path / "late.png"
+    proc = subprocess.run([sys.executable, "-m", "splatreel", "render", str(trained_checkpoint("spinner")), "--out",
+                           str(out), "--size", "32x24", "--time", "5", "--quiet"], capture_output=True, text=True)
+    assert proc.returncode == 0 and out.exists(), proc.stderr
+    assert proc.stderr.strip() == ("splatreel render: warning: --time 5 lies outside the model's time range [0, 1]: "
+                                   "little or nothing may be visible there")

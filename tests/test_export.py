@@ -99,14 +99,17 @@ def _quat_wxyz(value) -> np.ndarray:
 
 # --- frame times ---------------------------------------------------------------------------------------------
 
-def test_frame_times_spread_over_the_range_and_reject_outside_times():
+def test_frame_times_spread_over_the_range_and_warn_outside_it():
     np.testing.assert_allclose(frame_times((1.0, 3.0), 5), [1.0, 1.5, 2.0, 2.5, 3.0])
     np.testing.assert_allclose(frame_times((1.0, 3.0), 3, start=2.0), [2.0, 2.5, 3.0])
     np.testing.assert_allclose(frame_times((1.0, 3.0), 1), [1.0])
-    for kwargs in ({"frames": 4, "end": 3.5}, {"frames": 4, "start": 0.5}, {"frames": 0},
-                   {"frames": 3, "start": 2.5, "end": 2.0}):
-        with pytest.raises(ExportError, match="frames|outside|after"):
+    for kwargs in ({"frames": 0}, {"frames": 3, "start": 2.5, "end": 2.0}, {"frames": 2, "end": float("nan")}):
+        with pytest.raises(ExportError, match="frame-count|after|number"):
             frame_times((1.0, 3.0), **kwargs)
+    # outside the model's range: exported as asked, with a one-line warning (as render and view --time)
+    for kwargs, want in (({"frames": 2, "end": 3.5}, [1.0, 3.5]), ({"frames": 2, "start": 0.5}, [0.5, 3.0])):
+        with pytest.warns(UserWarning, match="outside the model's time range"):
+            np.testing.assert_allclose(frame_times((1.0, 3.0), **kwargs), want)
 
 
 def test_frames_keep_every_gaussian_with_opacity_zero_when_invisible(ball, frames):
@@ -512,7 +515,7 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
     assert "wrote" in capsys.readouterr().out
     cases = [
         (["usd", str(ckpt), "--out", str(out), "--frame-count", "3"], "already exists"),
-        (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--end", "2"], "outside the model's time range"),
+        (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--end", "2", "--start", "3"], "after --end"),
         (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--what", "splats,voxels"], "unknown prim kind"),
         (["ply", str(tmp_path / "missing.safetensors"), "--out", str(tmp_path / "p")], "no such file"),
         (["mesh", str(ckpt), "--out", str(tmp_path / "m"), "--resolution", "4"], "resolution"),
@@ -574,6 +577,21 @@ def test_a_sample_model_exports_z_up_without_options(tmp_path, capsys):
     assert UsdGeom.GetStageUpAxis(Usd.Stage.Open(str(tmp_path / "s.usda"))) == "Z"
     assert main(["export", "ply", str(ckpt), "--out", str(tmp_path / "ply"), "--frame-count", "2", "--quiet"]) == 0
     assert json.loads((tmp_path / "ply" / "manifest.json").read_text())["up_axis"] == "Z"
-    capsys.readouterr()
-    assert main(["sample", "spinner", "--model", str(tmp_path / "none.safetensors"), "--gaussians", "0"]) == 1
-    assert "--gaussians must be at least 1" in capsys.readouterr().err
+    from splatreel.samples import SampleConfigError, build_model
+
+    with pytest.raises(SampleConfigError, match="--gaussians must be at least 1"):  # the library names the option
+        build_model("spinner", num_gaussians=0)
+
+
+def test_export_ply_to_a_ply_name_writes_one_frame_or_says_it_writes_a_folder(ball, tmp_path, capsys):
+    ckpt = save_checkpoint(tmp_path / "ball.safetensors", ball)
+    one = tmp_path / "one.ply"
+    assert main(["export", "ply", str(ckpt), "--out", str(one), "--frame-count", "1", "--quiet"]) == 0
+    assert one.is_file() and "1 file," in capsys.readouterr().out
+    from splatreel.formats import read_checkpoint
+
+    assert len(read_checkpoint(one).model) == len(ball)  # a 3DGS PLY of the first frame
+    for fmt, out in (("ply", tmp_path / "many.ply"), ("mesh", tmp_path / "mesh.glb")):
+        assert main(["export", fmt, str(ckpt), "--out", str(out), "--frame-count", "3", "--quiet"]) == 1
+        err = capsys.readouterr().err
+        assert "writes a folder" in err and "give a folder name" in err and not out.exists()

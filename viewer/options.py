@@ -6,14 +6,10 @@ from __future__ import annotations
 import argparse
 import math
 
-from splatreel.errors import SplatreelError
+from splatreel.argtypes import OptionError, argtype, parse_positive  # noqa: F401  (the viewer's options use them)
 
 _NAMED_COLORS = {"black": (0.0, 0.0, 0.0), "white": (1.0, 1.0, 1.0), "grey": (0.5, 0.5, 0.5),
                  "gray": (0.5, 0.5, 0.5)}
-
-
-class OptionError(SplatreelError):
-    """A command-line value that cannot be parsed."""
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -77,30 +73,6 @@ def parse_background(text: str | None) -> tuple[tuple[float, float, float] | Non
         raise OptionError(f"background must be white, black, grey, transparent, #rrggbb or r,g,b in [0, 1], "
                           f"got {text!r}")
     return rgb, False  # type: ignore[return-value]
-
-
-def argtype(parse):
-    """Wrap a parser for argparse so that errors print as usage errors."""
-
-    def convert(text):
-        try:
-            return parse(text)
-        except OptionError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    convert.__name__ = parse.__name__.replace("parse_", "")
-    return convert
-
-
-def parse_positive(text: str) -> float:
-    """'2.5' -> 2.5; a positive finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise OptionError(f"expected a positive number, got {text!r}")
-    return value
 
 
 def add_footprint_args(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:

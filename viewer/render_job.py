@@ -166,6 +166,10 @@ def plan_render(request: RenderRequest, model, path: CameraPath | None, settings
                 else "loop")
     if request.time is not None and mode != "hold":
         raise OptionError(f"--time sets the held time; it does not apply to --time-mode {mode}")
+    if request.time is not None:
+        from splatreel.argtypes import warn_outside_time_range
+
+        warn_outside_time_range(request.time, model.time_range, "--time")
     times = scene_times(mode, frames, fps, model.time_range, request.loop_seconds, request.time, path)
     if mode == "path" and path is None:
         raise CameraError("--time-mode path needs --path or --cameras")

@@ -9,12 +9,14 @@ HELP = "render a dataset's test views with a model and report PSNR / SSIM per vi
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
+    from splatreel.argtypes import count
+
     p.add_argument("checkpoint", metavar="CKPT", help="model file")
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", "-o", metavar="JSON", help="also write the results as JSON to this file")
     p.add_argument("--split", choices=["test", "train"], default="test",
                    help="which views to render (default: test; datasets without test views need train)")
-    p.add_argument("--downscale", type=int, default=1, metavar="K", help="evaluate at 1/K resolution")
+    p.add_argument("--downscale", type=count, default=1, metavar="K", help="evaluate at 1/K resolution")
     p.add_argument("--layout", default="auto", choices=["auto", "dnerf", "orbit", "efficient4d", "sv4d"])
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                    help="background colour (default: the checkpoint's)")

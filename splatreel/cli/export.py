@@ -20,20 +20,21 @@ DEFAULT_FRAMES = 48
 
 
 def _add_common(q: argparse.ArgumentParser, output: str) -> None:
+    from ..argtypes import count, finite_number, positive_number
     from ._shared_options import add_crop_arg, add_up_arg
 
     q.add_argument("checkpoint", metavar="CKPT", help="model file (splatreel checkpoint or any imported format)")
     q.add_argument("--out", "-o", required=True, metavar=output, help="output file or folder")
-    q.add_argument("--frame-count", type=int, default=None, metavar="N",
+    q.add_argument("--frame-count", type=count, default=None, metavar="N",
                    help=f"number of frames (default: the keyframe count of a keyframed model, else {DEFAULT_FRAMES})")
-    q.add_argument("--fps", type=float, default=24.0, help="frames per second of the exported sequence (default 24)")
-    q.add_argument("--start", type=float, default=None, metavar="T", help="model time of the first frame (default t0)")
-    q.add_argument("--end", type=float, default=None, metavar="T", help="model time of the last frame (default t1)")
+    q.add_argument("--fps", type=positive_number, default=24.0, help="frames per second of the exported sequence (default 24)")
+    q.add_argument("--start", type=finite_number, default=None, metavar="T", help="model time of the first frame (default t0)")
+    q.add_argument("--end", type=finite_number, default=None, metavar="T", help="model time of the last frame (default t1)")
     # USD's upAxis is Y or Z (https://openusd.org/release/api/group___usd_geom_up_axis__group.html)
     add_up_arg(q, ("y", "z"), default=None, dest="up_axis",
                help="the model's up axis, written as metadata; data is not rotated (default: the checkpoint's "
                     "provenance 'up_axis' if recorded, else y)")
-    q.add_argument("--meters-per-unit", type=float, default=1.0, help="scene units in metres (default 1)")
+    q.add_argument("--meters-per-unit", type=positive_number, default=1.0, help="scene units in metres (default 1)")
     add_crop_arg(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     q.add_argument("--quiet", action="store_true", help="no progress bar")

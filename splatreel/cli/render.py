@@ -30,6 +30,7 @@ examples:
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.viewer.options import add_look_args, argtype, parse_size, parse_vector
     from splatreel.viewer.panorama import PROJECTIONS
+    from splatreel.argtypes import count, finite_number, non_negative_count, positive_number
 
     from ._shared_options import add_crop_arg, add_up_arg
 
@@ -45,34 +46,34 @@ def add_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--size", type=argtype(parse_size), default=None, metavar="WxH",
                    help="image size in pixels (default: the camera path file's, else 1280x720, or 2048x1024 for "
                         "--projection equirect; even for .mp4 and .webm)")
-    g.add_argument("--fps", type=float, default=None,
+    g.add_argument("--fps", type=positive_number, default=None,
                    help="frames per second (default: the camera path file's, else 30)")
-    g.add_argument("--frame-count", type=int, default=None, metavar="N",
+    g.add_argument("--frame-count", type=count, default=None, metavar="N",
                    help="number of frames (default: 1 for a .png/.exr image, else --seconds x --fps, or the whole "
                         "camera path)")
-    g.add_argument("--seconds", type=float, default=4.0, help="video length for orbit/spiral (default 4)")
+    g.add_argument("--seconds", type=positive_number, default=4.0, help="video length for orbit/spiral (default 4)")
     g.add_argument("--image-format", choices=("png", "exr"), default="png", help="format of a frame folder")
-    g.add_argument("--crf", type=int, default=None,
+    g.add_argument("--crf", type=non_negative_count, default=None,
                    help="constant quality of .mp4 (0 lossless .. 51) or .webm (0 .. 63); default 18")
     c = p.add_argument_group("camera")
     c.add_argument("--trajectory", choices=("orbit", "spiral", "path"), default=None,
                    help="camera motion (default orbit; path when --path or --cameras is given)")
-    c.add_argument("--path", metavar="JSON", help="keyframed camera path file (README: Camera path files)")
+    c.add_argument("--path", metavar="JSON", help="keyframed camera path file (format: the docs' Camera path page)")
     c.add_argument("--cameras", metavar="DATASET",
                    help="use the cameras of a training dataset as path: a D-NeRF layout folder or transforms json, "
                         "or a checkpoint trained by splatreel (it records its training cameras, any layout)")
     c.add_argument("--split", default="train", help="dataset split for --cameras (default train)")
-    c.add_argument("--seconds-per-key", type=float, default=0.5,
+    c.add_argument("--seconds-per-key", type=positive_number, default=0.5,
                    help="seconds between dataset cameras for --cameras (default 0.5)")
-    c.add_argument("--elevation", type=float, default=20.0, help="orbit elevation in degrees (default 20)")
-    c.add_argument("--azimuth", type=float, default=0.0, help="starting azimuth in degrees (default 0)")
-    c.add_argument("--amplitude", type=float, default=25.0,
+    c.add_argument("--elevation", type=finite_number, default=20.0, help="orbit elevation in degrees (default 20)")
+    c.add_argument("--azimuth", type=finite_number, default=0.0, help="starting azimuth in degrees (default 0)")
+    c.add_argument("--amplitude", type=finite_number, default=25.0,
                    help="spiral: elevation swing in degrees around --elevation (default 25)")
-    c.add_argument("--turns", type=float, default=1.0, help="full turns around the object (default 1)")
-    c.add_argument("--distance", type=float, default=None, help="camera distance (default: frame the model)")
+    c.add_argument("--turns", type=finite_number, default=1.0, help="full turns around the object (default 1)")
+    c.add_argument("--distance", type=positive_number, default=None, help="camera distance (default: frame the model)")
     c.add_argument("--target", type=argtype(lambda s: parse_vector(s, 3, "target")), default=None,
                    metavar="X,Y,Z", help="point to orbit around (default: centre of the model)")
-    c.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
+    c.add_argument("--fov", type=positive_number, default=40.0, help="vertical field of view in degrees (default 40)")
     c.add_argument("--projection", choices=PROJECTIONS, default=None,
                    help="equirect: 360° panoramas (2:1) seen from each camera's position, its view direction at "
                         "the centre, .mp4/.mov tagged as 360° video; --fov does not apply (default perspective, or "
@@ -83,8 +84,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="loop: the animation repeats every --loop-seconds; timelapse: one pass over the whole "
                         "video; hold: a fixed --time; path: the camera path's scene_time keys (default: path "
                         "when the path has them, hold with --time, else loop)")
-    t.add_argument("--time", type=float, default=None, help="model time for --time-mode hold")
-    t.add_argument("--loop-seconds", type=float, default=2.0,
+    t.add_argument("--time", type=finite_number, default=None, help="model time for --time-mode hold")
+    t.add_argument("--loop-seconds", type=positive_number, default=2.0,
                    help="video seconds per pass through the time range in loop mode (default 2)")
     s = p.add_argument_group("look")
     add_look_args(s)

@@ -37,30 +37,32 @@ examples:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
+    from ..argtypes import count, finite_number, non_negative_count, positive_number
+
     p.add_argument("name", nargs="?", metavar="NAME", help="sample to render (see --list)")
     p.add_argument("--out", "-o", metavar="DIR",
                    help="dataset folder to write (may be left out with --model or --trained)")
     p.add_argument("--list", action="store_true", help="list the samples with a one-line description and exit")
     d = p.add_argument_group("dataset")
     # Defaults are None so that a scene can tell an option given from one left out (see _scene_config).
-    d.add_argument("--views", type=int, default=None, help="training azimuths per frame, evenly spaced (default 16)")
-    d.add_argument("--time-steps", type=int, default=None, metavar="N",
+    d.add_argument("--views", type=count, default=None, help="training azimuths per frame, evenly spaced (default 16)")
+    d.add_argument("--time-steps", type=count, default=None, metavar="N",
                    help="training times f/(N-1), f = 0..N-1; also the model's key times (default 16; floor: 96)")
-    d.add_argument("--size", type=int, default=None, help="image width = height in pixels (default 256; floor: 200)")
-    d.add_argument("--elevation", type=float, default=None,
+    d.add_argument("--size", type=count, default=None, help="image width = height in pixels (default 256; floor: 200)")
+    d.add_argument("--elevation", type=finite_number, default=None,
                    help="training elevation, degrees above the horizon (default 30)")
-    d.add_argument("--radius", type=float, default=None, help="camera distance from the origin (default 2.5)")
-    d.add_argument("--fov", type=float, default=None,
+    d.add_argument("--radius", type=positive_number, default=None, help="camera distance from the origin (default 2.5)")
+    d.add_argument("--fov", type=positive_number, default=None,
                    help="field of view in degrees (default 49.13: fx = 280 px at 256 px, as Efficient4D; floor: 45)")
-    d.add_argument("--test-views", type=int, default=None, help="number of test images (default 16; floor: 12)")
+    d.add_argument("--test-views", type=non_negative_count, default=None, help="number of test images (default 16; floor: 12)")
     m = p.add_argument_group("model")
     m.add_argument("--model", metavar="MODEL.safetensors",
                    help="also write a 4D Gaussian checkpoint built from the sample's known motion")
     m.add_argument("--trained", metavar="CKPT.safetensors",
                    help="also copy the bundled trained checkpoint of the sample here")
-    m.add_argument("--gaussians", type=int, default=None,
+    m.add_argument("--gaussians", type=count, default=None,
                    help="Gaussians in the model (default 20000; floor: 5 per pixel, 200000 at 200 px)")
-    m.add_argument("--seed", type=int, default=0, help="surface sampling seed of the model (default 0)")
+    m.add_argument("--seed", type=non_negative_count, default=0, help="surface sampling seed of the model (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
 
 

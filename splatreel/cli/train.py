@@ -24,6 +24,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
+    from splatreel.argtypes import count, non_negative_count, non_negative_number, positive_number
     from splatreel.train.config import PRESETS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
@@ -31,18 +32,18 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="auto", choices=list(PRESETS),
                    help="; ".join(f"{k}: {v[0]}" for k, v in PRESETS.items()))
     budget = p.add_mutually_exclusive_group()
-    budget.add_argument("--minutes", type=float, metavar="M",
+    budget.add_argument("--minutes", type=positive_number, metavar="M",
                         help="time budget: the run ends after M minutes, set-up included, and every schedule "
                              "stretches to it (default: the auto recipe's, 4 for an image matrix, 3 for one camera "
                              "per time)")
-    budget.add_argument("--iters", type=int, help="run this many iterations instead of a time budget (the "
+    budget.add_argument("--iters", type=count, help="run this many iterations instead of a time budget (the "
                                                   "preset's schedules scale with it; runs are then reproducible)")
     p.add_argument("--resume", action="store_true", help="continue the run saved in --out (bit for bit)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=non_negative_count, default=0, help="random seed (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out")
     p.add_argument("--layout", default="auto", choices=["auto", "dnerf", "orbit", "efficient4d", "sv4d"],
                    help="dataset layout (default: detect)")
-    p.add_argument("--downscale", type=int, default=1, metavar="K", help="train on images K times smaller")
+    p.add_argument("--downscale", type=count, default=1, metavar="K", help="train on images K times smaller")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                    help="background colour in [0,1] that RGBA images are composited on (default: the dataset "
                         "JSON's 'background', else the layout's convention: white for D-NeRF, Efficient4D and SV4D, "
@@ -50,31 +51,31 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strict-alpha", action="store_true",
                    help="train on the alpha as given even where views contradict each other (default: transparent "
                         "pixels whose rays cross a surface other views see opaque get no loss)")
-    p.add_argument("--num-gaussians", type=int, help="Gaussians at initialisation")
-    p.add_argument("--max-gaussians", type=int, help="cap on densification (default: the recipe's)")
+    p.add_argument("--num-gaussians", type=count, help="Gaussians at initialisation")
+    p.add_argument("--max-gaussians", type=count, help="cap on densification (default: the recipe's)")
     p.add_argument("--no-densify", action="store_true", help="keep the initial Gaussians (no clone, split or prune)")
     p.add_argument("--init", choices=["auto", "ball", "frustum", "points"], default="auto",
                    help="initial Gaussians: in a ball carved by the masks, over the volume the cameras see, or on a "
                         "point cloud (default: the dataset's fused.ply / points3d.ply / COLMAP points3D when it has "
                         "one, else frustum for an open floor or backdrop, else ball)")
     p.add_argument("--init-points", metavar="FILE", help="point cloud (PLY or COLMAP points3D) to initialise on")
-    p.add_argument("--scale-ratio-weight", type=float, metavar="W",
+    p.add_argument("--scale-ratio-weight", type=non_negative_number, metavar="W",
                    help="penalty on Gaussians more than 10:1 anisotropic (default: the recipe's, 0.1 for one camera "
                         "per time, else 0)")
-    p.add_argument("--t-scale-init", type=float, metavar="FRAMES",
+    p.add_argument("--t-scale-init", type=positive_number, metavar="FRAMES",
                    help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
     p.add_argument("--init-mesh", metavar="FILE", help="initialise on the surface of this mesh (4DGen)")
     p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree")
     p.add_argument("--sh-degree-t", type=int, choices=range(3), help="time (Fourier) SH degree")
-    p.add_argument("--static-iters", type=int, help="first fit frame 0 with time frozen for this many iterations "
+    p.add_argument("--static-iters", type=non_negative_count, help="first fit frame 0 with time frozen for this many iterations "
                                                      "(SV4D static-to-dynamic)")
     p.add_argument("--resolution-ramp", type=_ramp, metavar="F:K,...",
                    help="coarse-to-fine: train at 1/K resolution until fraction F of the iterations, e.g. 0.2:4,0.5:2")
-    p.add_argument("--smooth-weight", type=float, help="temporal smoothness weight (4DGen-style; 0 = off)")
+    p.add_argument("--smooth-weight", type=non_negative_number, help="temporal smoothness weight (4DGen-style; 0 = off)")
     p.add_argument("--no-confidence", action="store_true", help="disable Efficient4D's confidence weights")
-    p.add_argument("--batch-size", type=int, help="images per step")
-    p.add_argument("--checkpoint-every", type=int, metavar="N", help="write a checkpoint every N iterations")
-    p.add_argument("--stop-at", type=int, metavar="N", help="stop after iteration N, leaving a resumable run")
+    p.add_argument("--batch-size", type=count, help="images per step")
+    p.add_argument("--checkpoint-every", type=non_negative_count, metavar="N", help="write a checkpoint every N iterations")
+    p.add_argument("--stop-at", type=count, metavar="N", help="stop after iteration N, leaving a resumable run")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="compute device")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -30,6 +30,7 @@ examples:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
+    from splatreel.argtypes import count, finite_number, positive_number
     from splatreel.viewer.options import add_look_args, argtype, parse_pixel, parse_positive, parse_rect, parse_size
 
     from ._shared_options import add_crop_arg, add_up_arg
@@ -39,11 +40,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=argtype(parse_size), default=(1280, 720), metavar="WxH",
                    help="window size (default 1280x720)")
     add_up_arg(p, ("y", "z"), help="world up axis for orbiting")
-    p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees (default 40)")
+    p.add_argument("--fov", type=positive_number, default=40.0, help="vertical field of view in degrees (default 40)")
     add_look_args(p, transparent=False)
     p.add_argument("--paused", action="store_true", help="start with playback paused")
-    p.add_argument("--time", type=float, default=None, help="model time to start at (default: mid-range)")
-    p.add_argument("--loop-seconds", type=float, default=2.0,
+    p.add_argument("--time", type=finite_number, default=None, help="model time to start at (default: mid-range)")
+    p.add_argument("--loop-seconds", type=positive_number, default=2.0,
                    help="seconds per pass through the time range at speed 1 (default 2)")
     p.add_argument("--cameras", metavar="DATASET",
                    help="training dataset whose cameras can be snapped to: a D-NeRF layout folder or transforms "
@@ -55,7 +56,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     add_crop_arg(p, " (start with the panel's crop box on, at this box)")
     p.add_argument("--screenshot-dir", default=".", help="folder for screenshots taken with P (default .)")
     p.add_argument("--no-vsync", action="store_true", help="draw as fast as possible")
-    p.add_argument("--render-scale", type=float, default=1.0, metavar="S",
+    p.add_argument("--render-scale", type=positive_number, default=1.0, metavar="S",
                    help="draw S x the window's width and height (0.25-1 in steps of 1/8, default 1) and stretch "
                         "the image to the window: faster on a CPU")
     p.add_argument("--no-adaptive-resolution", action="store_true",
@@ -72,7 +73,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="start with the Gaussians whose centre shows in this window rectangle selected, as if "
                         "Shift+dragged (corners in pixels from the top left)")
     a = p.add_argument_group("automation (scripted captures, tests)")
-    a.add_argument("--exit-after", type=int, default=None, metavar="FRAMES", help="close after this many frames")
+    a.add_argument("--exit-after", type=count, default=None, metavar="FRAMES", help="close after this many frames")
     a.add_argument("--screenshot", metavar="PNG", help="with --exit-after: save the last frame here")
     a.add_argument("--report", metavar="JSON",
                    help="write frame count, times, the screenshot's camera, the --inspect pixel's Gaussians and the "
@@ -133,6 +134,10 @@ def run(args: argparse.Namespace) -> int:
         dataset_views(args.cameras, args.split)
     ckpt = read_checkpoint(args.checkpoint or str(trained_checkpoint("spinner")))
     check_crop(ckpt.model, args.crop)  # a bad box, or one that misses the model
+    if args.time is not None:
+        from splatreel.argtypes import warn_outside_time_range
+
+        warn_outside_time_range(args.time, ckpt.model.time_range, "--time")
     report = run_app(ckpt, options)
     if args.exit_after is not None:
         print(f"drew {report['frames']} frame(s); time {report['time_start']:.3f} -> {report['time_end']:.3f}")

@@ -345,7 +345,7 @@ def test_cli_errors_are_one_line(capsys, tmp_path):
     assert main(["sample", "wave", "--out", str(tmp_path / "taken"), "--size", "16"]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "already exists" in err and "--force" in err
-    assert main(["sample", "wave", "--out", str(tmp_path / "y"), "--views", "0"]) == 1
+    assert main(["sample", "wave", "--out", str(tmp_path / "y"), "--views", "1001"]) == 1
     assert "--views" in capsys.readouterr().err
 
 

@@ -160,6 +160,8 @@ def test_cli_train_refuse_stop_resume_and_eval(tiny, tmp_path, capsys):
     assert load_checkpoint(out).training["iteration"] == 3
     assert main(args) == 1  # exists, no --force
     assert "already exists" in capsys.readouterr().err
+    assert main(["train", str(tmp_path / "no-such-dataset"), "--out", str(out)]) == 1  # refused before reading data
+    assert "already exists" in capsys.readouterr().err
     assert main(args + ["--resume"]) == 0
     assert load_checkpoint(out).training["iteration"] == 6
     js = tmp_path / "eval.json"

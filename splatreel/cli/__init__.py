@@ -73,9 +73,17 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(options_of=chosen_command(argv))
     args = parser.parse_args(argv)
-    # a warning is one line that names the command, like an error, not a source location and a code line
+    # a warning is one line that names the command, like an error, not a source location and a code line; the
+    # library's logged warnings (the importers' assumptions) print the same way
+    import logging
+
+    prefix = f"splatreel {args.command}: warning: "
     previous = warnings.formatwarning
-    warnings.formatwarning = lambda message, *_, **__: f"splatreel {args.command}: warning: {message}\n"
+    warnings.formatwarning = lambda message, *_, **__: f"{prefix}{message}\n"
+    handler = logging.StreamHandler()
+    handler.setFormatter(logging.Formatter(prefix + "%(message)s"))
+    logger = logging.getLogger("splatreel")
+    logger.addHandler(handler)
     try:
         code = int(args._run(args) or 0)
         sys.stdout.flush()  # inside the try: a reader that went away is a BrokenPipeError here, not at exit
@@ -99,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ERROR
     finally:
         warnings.formatwarning = previous
+        logger.removeHandler(handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -16,8 +16,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", "-o", metavar="JSON", help="also write the results as JSON to this file")
     p.add_argument("--split", choices=["test", "train"], default="test",
                    help="which views to render (default: test; datasets without test views need train)")
-    p.add_argument("--downscale", type=count, default=1, metavar="K", help="evaluate at 1/K resolution")
-    p.add_argument("--layout", default="auto", choices=["auto", "dnerf", "orbit", "efficient4d", "sv4d"])
+    p.add_argument("--downscale", type=count, default=1, metavar="K",
+                   help="evaluate at 1/K resolution (default 1; use the --downscale the model was trained at)")
+    p.add_argument("--layout", default="auto", choices=["auto", "dnerf", "orbit", "efficient4d", "sv4d"],
+                   help="dataset layout (default auto: detected from the folder, as train does)")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                    help="background colour (default: the checkpoint's)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
@@ -43,7 +45,6 @@ def run(args: argparse.Namespace) -> int:
                 "downscale": args.downscale})
     print(f"{args.split} views: {res['num_views']}  PSNR {res['psnr']:.2f} dB  SSIM {res['ssim']:.4f}  "
           f"({res['seconds']:.1f} s)")
-    print(res["lpips_note"])
     if args.out:
         atomic_write_json(args.out, res, force=args.force)
     return 0

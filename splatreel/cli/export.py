@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     paths = exporters()[args.exporter].run(model, times, Path(args.out), args)
     size = sum(p.stat().st_size for p in paths if p.is_file())
     where = args.out if len(paths) > 1 else paths[0]
-    print(f"wrote {where}: {len(paths)} file{'s' * (len(paths) != 1)}, {_human(size)}, {len(times)} frames "
-          f"(t = {times[0]:g} .. {times[-1]:g}), {len(model):,} Gaussians")
+    span = f"{len(times)} frames (t = {times[0]:g} .. {times[-1]:g})" if len(times) > 1 else f"1 frame (t = {times[0]:g})"
+    print(f"wrote {where}: {len(paths)} file{'s' * (len(paths) != 1)}, {_human(size)}, {span}, "
+          f"{len(model):,} Gaussians")
     return 0

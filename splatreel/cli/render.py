@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
                           args.force)
     median = lambda xs: statistics.median(xs) if xs else 0.0  # noqa: E731  (the first frame compiles kernels)
     width, height = job.size
-    print(f"wrote {args.out}: {summary.frames} frame(s) {width}x{height}"
+    print(f"wrote {args.out}: {summary.frames} frame{'s' * (summary.frames != 1)} {width}x{height}"
           + (f" at {job.fps:g} fps" if summary.frames > 1 else "")
           + f", {len(model):,} Gaussians, median sort {median(summary.sort_ms):.1f} ms + draw "
             f"{median(summary.draw_ms):.1f} ms per frame" + (f"; cameras in {args.save_cameras}"

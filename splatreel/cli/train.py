@@ -43,7 +43,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing --out")
     p.add_argument("--layout", default="auto", choices=["auto", "dnerf", "orbit", "efficient4d", "sv4d"],
                    help="dataset layout (default: detect)")
-    p.add_argument("--downscale", type=count, default=1, metavar="K", help="train on images K times smaller")
+    p.add_argument("--downscale", type=count, default=1, metavar="K", help="train on images K times smaller (default 1)")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                    help="background colour in [0,1] that RGBA images are composited on (default: the dataset "
                         "JSON's 'background', else the layout's convention: white for D-NeRF, Efficient4D and SV4D, "
@@ -51,7 +51,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strict-alpha", action="store_true",
                    help="train on the alpha as given even where views contradict each other (default: transparent "
                         "pixels whose rays cross a surface other views see opaque get no loss)")
-    p.add_argument("--num-gaussians", type=count, help="Gaussians at initialisation")
+    p.add_argument("--num-gaussians", type=count, help="Gaussians at initialisation (default: the preset's; train prints it)")
     p.add_argument("--max-gaussians", type=count, help="cap on densification (default: the recipe's)")
     p.add_argument("--no-densify", action="store_true", help="keep the initial Gaussians (no clone, split or prune)")
     p.add_argument("--init", choices=["auto", "ball", "frustum", "points"], default="auto",
@@ -65,16 +65,16 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--t-scale-init", type=positive_number, metavar="FRAMES",
                    help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
     p.add_argument("--init-mesh", metavar="FILE", help="initialise on the surface of this mesh (4DGen)")
-    p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree")
-    p.add_argument("--sh-degree-t", type=int, choices=range(3), help="time (Fourier) SH degree")
+    p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree, 0-3 (default: the preset's; train prints it)")
+    p.add_argument("--sh-degree-t", type=int, choices=range(3), help="time (Fourier) SH degree, 0-2 (default: the preset's)")
     p.add_argument("--static-iters", type=non_negative_count, help="first fit frame 0 with time frozen for this many iterations "
                                                      "(SV4D static-to-dynamic)")
     p.add_argument("--resolution-ramp", type=_ramp, metavar="F:K,...",
                    help="coarse-to-fine: train at 1/K resolution until fraction F of the iterations, e.g. 0.2:4,0.5:2")
-    p.add_argument("--smooth-weight", type=non_negative_number, help="temporal smoothness weight (4DGen-style; 0 = off)")
+    p.add_argument("--smooth-weight", type=non_negative_number, help="temporal smoothness weight (4DGen-style; 0 = off; default: the preset's)")
     p.add_argument("--no-confidence", action="store_true", help="disable Efficient4D's confidence weights")
-    p.add_argument("--batch-size", type=count, help="images per step")
-    p.add_argument("--checkpoint-every", type=non_negative_count, metavar="N", help="write a checkpoint every N iterations")
+    p.add_argument("--batch-size", type=count, help="images per step (default: the preset's; train prints it)")
+    p.add_argument("--checkpoint-every", type=non_negative_count, metavar="N", help="also write a checkpoint every N iterations (default: the preset's; 0 = only at the end)")
     p.add_argument("--stop-at", type=count, metavar="N", help="stop after iteration N, leaving a resumable run")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="compute device")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -143,7 +143,6 @@ def background_name(rgb) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import math
     import time
 
     started = time.perf_counter()  # a time budget covers the whole command
@@ -155,17 +154,10 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.train.data import load_dataset
     from splatreel.train.trainer import Trainer
 
-    for name in ("iters", "downscale", "num_gaussians", "max_gaussians", "batch_size", "stop_at"):
-        v = getattr(args, name)
-        if v is not None and v < 1:
-            raise SplatreelError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
-    for name in ("minutes", "t_scale_init"):
-        v = getattr(args, name)
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise SplatreelError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
-    if args.scale_ratio_weight is not None and not (math.isfinite(args.scale_ratio_weight)
-                                                    and args.scale_ratio_weight >= 0):
-        raise SplatreelError(f"--scale-ratio-weight must be >= 0, got {args.scale_ratio_weight}")
+    if not args.resume:  # refuse before the dataset is read (that can take minutes)
+        from splatreel.fileio import check_writable
+
+        check_writable(args.out, args.force)
     resumed, recorded_bg = None, None
     if args.resume:
         if not Path(args.out).exists():

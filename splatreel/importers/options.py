@@ -161,7 +161,7 @@ class ImportRecord:
 
     def warn(self, text: str) -> None:
         """Print one warning line now (stderr, logger ``splatreel.importers``) and keep it in the provenance."""
-        log.warning("splatreel: %s: %s", self.source.name or str(self.source), text)
+        log.warning("%s: %s", self.source.name or str(self.source), text)
         self.warnings.append(text)
 
     def given(self, name: str) -> Any:
@@ -186,12 +186,12 @@ class ImportRecord:
         """Log the assumptions (one line) and the options that had no effect on this file (one line)."""
         name = self.source.name or str(self.source)
         if self.assumed:
-            log.warning("splatreel: %s: assumed %s (reasons: splatreel info; give the options to override)", name,
-                        ", ".join(self._short))
+            log.warning("%s: assumed %s (give these options to choose otherwise; `splatreel info` lists why each "
+                        "was assumed)", name, ", ".join(self._short))
         unused = sorted(set(self.options) - self._used - {"progress"})
         if unused:
             flags = ", ".join("--" + u.replace("_", "-") for u in unused)
-            log.warning("splatreel: %s: ignored %s (not used for %s files)", name, flags, self.reader)
+            log.warning("%s: ignored %s (not used for %s files)", name, flags, self.reader)
             self.facts["ignored_options"] = unused
 
 

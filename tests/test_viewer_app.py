@@ -378,3 +378,17 @@ def test_the_window_title_names_the_file_and_show_box_draws_the_box_before_it_cr
     finally:
         planner.close()
         app.renderer.release()
+
+
+def test_the_status_line_wraps_long_paths_inside_the_panel():
+    from splatreel.viewer.app_data import wrap_text
+
+    width = 30  # characters, with one character one unit wide
+    status = ("error: /very/long/folder/name/that/does/not/fit/in/the/panel/model.safetensors: no such file or "
+              "folder")
+    lines = wrap_text(status, width, len)
+    assert all(len(line) <= width for line in lines) and len(lines) >= 4
+    assert "".join(lines).replace(" ", "") == status.replace(" ", "")  # nothing lost
+    assert lines[1].endswith("/")  # the path breaks after a '/'
+    assert wrap_text("short status", width, len) == ["short status"]
+    assert wrap_text("x" * 70, width, len) == ["x" * 30, "x" * 30, "x" * 10]  # no '/': anywhere

@@ -210,3 +210,30 @@ def edited_name(source: str) -> str:
     stem = Path(source).stem if Path(source).suffix else ""
     return f"{stem}_edited.safetensors" if stem else "edited.safetensors"
 
+
+
+def wrap_text(text: str, width: float, measure) -> list[str]:
+    """`text` broken into lines no wider than `width` by `measure(str) -> float`: at spaces, and inside a word
+    too long for a line (a file path in an error) after a '/', or anywhere when it has none. Dear ImGui's own
+    wrapping breaks at spaces only, so a long path ran past the panel."""
+    lines: list[str] = []
+    for paragraph in text.split("\n"):
+        line = ""
+        for word in paragraph.split(" "):
+            candidate = f"{line} {word}" if line else word
+            if measure(candidate) <= width:
+                line = candidate
+                continue
+            if line:
+                lines.append(line)
+            line = word
+            while measure(line) > width and len(line) > 1:  # split the word itself
+                cut = len(line) - 1
+                while cut > 1 and measure(line[:cut]) > width:
+                    cut -= 1
+                slash = line.rfind("/", 1, cut)
+                cut = slash + 1 if slash > 0 else cut
+                lines.append(line[:cut])
+                line = line[cut:]
+        lines.append(line)
+    return lines

@@ -12,7 +12,7 @@ from imgui_bundle import imgui
 
 from splatreel.constants import NEAR_PLANE
 
-from .app_data import PATH_FORMATS, Inspector, MeasureTape
+from .app_data import PATH_FORMATS, Inspector, MeasureTape, wrap_text
 from .camera_path import CameraPath
 from .overlay import SELECTION_COLOR
 from .pick import peak_time, vector_text
@@ -78,7 +78,9 @@ def draw_panel(app: AppState) -> None:
     imgui.same_line()
     if imgui.button("Open"):
         app._pending_open = app._open_text
-    imgui.text_wrapped(app.status or "drop a model file on the window to open it")
+    status = app.status or "drop a model file on the window to open it"
+    for line in wrap_text(status, imgui.get_content_region_avail().x, lambda s: imgui.calc_text_size(s).x):
+        imgui.text(line)
     imgui.end()
 
 

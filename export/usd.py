@@ -102,7 +102,7 @@ class UsdOptions:
         for name in ("fps", "meters_per_unit", "instance_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
-                raise ExportError(f"{name.replace('_', '-')} must be a positive number, got {v}")
+                raise ExportError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
 
 
 def parse_what(text: str) -> tuple[str, ...]:

@@ -32,51 +32,40 @@ def argtype(parse):
     return convert
 
 
-def _number(text: str, kind=float) -> float:
+def _number(text: str, ok, expected: str, kind=float):
+    """`text` as a `kind` that passes `ok`, else OptionError "expected <expected>, got '<text>'"."""
     try:
         value = kind(text)
     except ValueError:
-        raise OptionError(f"expected {'a whole number' if kind is int else 'a number'}, got {text!r}") from None
-    if not math.isfinite(value):
-        raise OptionError(f"expected a finite number, got {text!r}")
+        value = None
+    if value is None or not math.isfinite(value) or not ok(value):
+        raise OptionError(f"expected {expected}, got {text!r}")
     return value
 
 
 def parse_positive(text: str) -> float:
     """'2.5' -> 2.5; a positive finite number."""
-    value = _number(text)
-    if not value > 0:
-        raise OptionError(f"expected a positive number, got {text!r}")
-    return value
+    return _number(text, lambda v: v > 0, "a positive number")
 
 
 def parse_non_negative(text: str) -> float:
     """'0' -> 0.0; a finite number >= 0."""
-    value = _number(text)
-    if value < 0:
-        raise OptionError(f"expected a number >= 0, got {text!r}")
-    return value
+    return _number(text, lambda v: v >= 0, "a number >= 0")
 
 
 def parse_finite(text: str) -> float:
     """'-1.5' -> -1.5; any finite number (not nan or inf)."""
-    return _number(text)
+    return _number(text, lambda v: True, "a finite number")
 
 
 def parse_count(text: str) -> int:
     """'3' -> 3; a whole number >= 1."""
-    value = _number(text, int)
-    if value < 1:
-        raise OptionError(f"expected a whole number >= 1, got {text!r}")
-    return value
+    return _number(text, lambda v: v >= 1, "a whole number >= 1", int)
 
 
 def parse_non_negative_count(text: str) -> int:
     """'0' -> 0; a whole number >= 0."""
-    value = _number(text, int)
-    if value < 0:
-        raise OptionError(f"expected a whole number >= 0, got {text!r}")
-    return value
+    return _number(text, lambda v: v >= 0, "a whole number >= 0", int)
 
 
 positive_number = argtype(parse_positive)

@@ -296,7 +296,7 @@ def test_cli_writes_floor(tmp_path, capsys):
 @pytest.mark.parametrize("args,needle", [
     (["--time-steps", "5"], "must be 12..1000"),
     (["--size", "2"], "--size"),
-    (["--test-views", "-3"], "--test-views"),
+    (["--test-views", "1001"], "--test-views"),
     (["--views", "8"], "--views does not apply"),
     (["--elevation", "20", "--radius", "3"], "--elevation, --radius do not apply"),
     (["--trained", "t.safetensors"], "no trained checkpoint"),

@@ -515,7 +515,7 @@ def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_pa
     assert "wrote" in capsys.readouterr().out
     cases = [
         (["usd", str(ckpt), "--out", str(out), "--frame-count", "3"], "already exists"),
-        (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--end", "2", "--start", "3"], "after --end"),
+        (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--start", "0.8", "--end", "0.2"], "after --end"),
         (["usd", str(ckpt), "--out", str(tmp_path / "b.usd"), "--what", "splats,voxels"], "unknown prim kind"),
         (["ply", str(tmp_path / "missing.safetensors"), "--out", str(tmp_path / "p")], "no such file"),
         (["mesh", str(ckpt), "--out", str(tmp_path / "m"), "--resolution", "4"], "resolution"),

@@ -116,3 +116,20 @@ def test_convert_crop_keeps_the_box_and_records_it(tmp_path, capsys):
     assert main(["convert", str(src), "--out", str(missed), "--crop", "5", "5", "5", "6", "6", "6"]) == 1
     err = capsys.readouterr().err
     assert "holds none of the 500 Gaussians" in err and err.count("\n") == 1 and not missed.exists()
+
+
+def test_convert_up_records_the_up_axis_the_exporters_then_declare(tmp_path, capsys):
+    """Other tools' files do not say which way is up: ``convert --up z`` records it, and export declares it."""
+    from pxr import Usd, UsdGeom
+
+    from splatreel.checkpoint import load_checkpoint, save_checkpoint
+    from splatreel.viewer.synthetic import synthetic_model
+
+    src = save_checkpoint(tmp_path / "src.safetensors", synthetic_model(50, seed=1))
+    out = tmp_path / "z.safetensors"
+    assert main(["convert", str(src), "--out", str(out), "--up", "z"]) == 0
+    assert load_checkpoint(out).provenance["up_axis"] == "z"
+    usd = tmp_path / "z.usda"
+    assert main(["export", "usd", str(out), "--out", str(usd), "--frame-count", "2", "--quiet"]) == 0
+    assert UsdGeom.GetStageUpAxis(Usd.Stage.Open(str(usd))) == "Z"
+    capsys.readouterr()

@@ -31,7 +31,7 @@ examples:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from ..importers import add_import_args
-    from ._shared_options import add_crop_arg
+    from ._shared_options import add_crop_arg, add_up_arg
 
     p.add_argument("input", metavar="INPUT", help="file, folder or quoted glob to convert")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -39,6 +39,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dtype", choices=("float32", "float64"), default="float32",
                    help="floating-point type of the stored tensors (default float32)")
     add_crop_arg(p)
+    add_up_arg(p, ("y", "z"), default=None, dest="up_axis",
+               help="the model's up axis, recorded in the checkpoint for the exporters (other tools' files do not "
+                    "say; default: what the input records, else exporters assume y)")
     add_import_args(p)
 
 
@@ -63,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
     ckpt = read_checkpoint(args.input, **import_options(args))
     model = ckpt.model.to(dtype=getattr(torch, args.dtype))
     provenance = dict(ckpt.provenance) or {"source": str(Path(args.input).resolve()), "reader": "splatreel"}
+    if args.up_axis is not None:
+        provenance["up_axis"] = args.up_axis
     if box is not None:
         before = len(model)
         model = apply_crop(model, args.crop)

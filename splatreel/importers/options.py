@@ -49,7 +49,7 @@ _FLAGS: dict[str, tuple[tuple[str, ...], dict]] = {
         help="background colour recorded with the imported model, 0..1 (default: from cfg_args when "
              "present, else black for official 4DGS checkpoints and PLY files, white for Efficient4D, "
              "4DGaussians and 4DGen)")),
-    "frames": (("--frames", "--bake-frames"), dict(
+    "frames": (("--bake-frames",), dict(
         type=int, metavar="N",
         help="4DGaussians/4DGen folders: number of times at which the deformation is baked into keyframes "
              "(default 30 for 4DGaussians, 16 for 4DGen), evenly spaced over the time range")),

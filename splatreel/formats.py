@@ -114,6 +114,8 @@ _WRITERS: list[Writer] = [
            "splatreel.export.mesh"),
     Writer("ply", "one standard 3DGS PLY per frame (+ manifest.json), for other splat viewers", "OUTDIR",
            "splatreel.export.ply"),
+    Writer("gltf", "glTF 2.0 .glb with KHR_gaussian_splatting: one time per file (a folder for a sequence)",
+           "OUT.glb|OUTDIR", "splatreel.export.gltf"),
 ]
 
 

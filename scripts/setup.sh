@@ -21,6 +21,14 @@ if ((${#missing[@]})); then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
+# --- Node.js for the glTF tests (the Khronos glTF-Validator is an npm package; tests/test_gltf.py installs it) ----
+if ! command -v npm >/dev/null; then
+    echo "splatreel setup: installing Node.js and npm"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends nodejs npm >/dev/null
+fi
+
 # --- Python environment -----------------------------------------------------------------------------------
 PYTHON="${PYTHON:-python3.11}"
 command -v "$PYTHON" >/dev/null || PYTHON=python3

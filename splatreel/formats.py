@@ -69,6 +69,8 @@ class Writer:
     help: str
     output: str
     module: str
+    #: False for a format that holds the whole animation (the player evaluates it): the frame options do not apply
+    sampled: bool = True
 
     def add_args(self, parser) -> None:
         resolve(f"{self.module}:add_args")(parser)
@@ -102,6 +104,8 @@ _READERS: list[Reader] = [
            "splatreel.importers.ply:sniff_ply", "splatreel.importers.ply:read_ply_model"),
     Reader("ply-sequence", "folder or glob of per-frame 3DGS PLY files",
            "splatreel.importers:sniff_ply_sequence", "splatreel.importers.ply:read_ply_sequence"),
+    Reader("splatv", "splaTV / gsplat.js .splatv (Spacetime Gaussians lite)",
+           "splatreel.importers.splatv:sniff", "splatreel.importers.splatv:read_splatv"),
     Reader("splatreel", "splatreel checkpoint (.safetensors)",
            "splatreel.formats:is_safetensors", "splatreel.formats:read_native"),
 ]
@@ -116,6 +120,8 @@ _WRITERS: list[Writer] = [
            "splatreel.export.ply"),
     Writer("gltf", "glTF 2.0 .glb with KHR_gaussian_splatting: one time per file (a folder for a sequence)",
            "OUT.glb|OUTDIR", "splatreel.export.gltf"),
+    Writer("splatv", "the whole native 4D model as one .splatv for the splaTV / gsplat.js web players (DC colour)",
+           "OUT.splatv", "splatreel.export.splatv", sampled=False),
 ]
 
 

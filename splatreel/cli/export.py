@@ -67,20 +67,22 @@ def run(args: argparse.Namespace) -> int:
     from ._shared_options import apply_crop
 
     check_writable(args.out, args.force)  # refuse before loading anything
-    if not (args.fps > 0 and args.meters_per_unit > 0):
-        raise ExportError(f"--fps and --meters-per-unit must be positive, got {args.fps} and {args.meters_per_unit}")
-    if args.frame_count is not None and args.frame_count < 1:
-        raise ExportError(f"--frame-count must be a positive integer, got {args.frame_count}")
+    writer = exporters()[args.exporter]
+    if not writer.sampled and any(getattr(args, k) is not None for k in ("frame_count", "start", "end")):
+        raise ExportError(f"export {writer.name} writes the whole animation; --frame-count, --start and --end do not "
+                          "apply")
     ckpt = read_checkpoint(args.checkpoint)
     model = apply_crop(ckpt.model, args.crop)
     frames = args.frame_count if args.frame_count is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
     times = frame_times(model.time_range, frames, args.start, args.end)
     args.provenance = dict(ckpt.provenance or {})
     args.progress = not args.quiet
-    paths = exporters()[args.exporter].run(model, times, Path(args.out), args)
+    paths = writer.run(model, times, Path(args.out), args)
     size = sum(p.stat().st_size for p in paths if p.is_file())
     where = args.out if len(paths) > 1 else paths[0]
-    span = f"{len(times)} frames (t = {times[0]:g} .. {times[-1]:g})" if len(times) > 1 else f"1 frame (t = {times[0]:g})"
+    t0, t1 = model.time_range
+    span = (f"{len(times)} frames (t = {times[0]:g} .. {times[-1]:g})" if len(times) > 1 else
+            f"1 frame (t = {times[0]:g})") if writer.sampled else f"the whole animation (t = {t0:g} .. {t1:g})"
     print(f"wrote {where}: {len(paths)} file{'s' * (len(paths) != 1)}, {_human(size)}, {span}, "
           f"{len(model):,} Gaussians")
     return 0

@@ -32,7 +32,7 @@ import numpy as np
 from splatreel.fileio import atomic_write_bytes
 from splatreel.importers.splatv import MIN_WIDTH, RECORD, splatv_bytes
 
-from .base import ExportError
+from .base import ExportError, linear_motion
 
 #: image size of the camera the file suggests (splaTV reads its focal lengths; gsplat.js starts from it)
 CAMERA_SIZE = (1280, 720)
@@ -41,36 +41,19 @@ CAMERA_FOV_DEG = 40.0
 
 def splatv_records(model) -> np.ndarray:
     """The `RECORD` array of a native 4D model, in drawing-priority order (see module doc)."""
-    import torch
-
-    from splatreel.covariance import condition_on_time, decompose_covariance_3d
-    from splatreel.sh import SH_C0, num_sh_bases
-
-    if model.kind != "gaussians4d":
-        raise ExportError(f".splatv holds linearly moving Gaussians; a {model.kind} model has none (export its "
-                          "frames with export ply or export gltf)")
+    g = linear_motion(model, ".splatv")
     t0, t1 = model.time_range
     span = float(t1) - float(t0)
-    with torch.no_grad():
-        cov3, velocity, var_t = condition_on_time(model.covariance_4d().double())
-        scales, quats = decompose_covariance_3d(cov3)
-        k = num_sh_bases(model.sh_degree)
-        dc = model.sh_coeffs[:, 0].double()
-        for n in range(1, model.sh_degree_t + 1):  # the time terms averaged under the temporal weight
-            damping = torch.exp(-0.5 * (2.0 * math.pi * n / span) ** 2 * var_t)
-            dc = dc + damping[:, None] * model.sh_coeffs[:, n * k].double()
-        rgb = (0.5 + SH_C0 * dc).clamp(0.0, 1.0)
-        opacity = model.opacities.double()
     records = np.zeros(len(model), RECORD)
-    records["position"] = model.means.detach().numpy()
-    records["rotation"] = quats.numpy()
-    records["scale"][:, :3] = scales.numpy()
-    records["rgba"][:, :3] = np.round(rgb.numpy() * 255.0)
-    records["rgba"][:, 3] = np.round(opacity.numpy() * 255.0)
-    records["motion"][:, :3] = (velocity * span).numpy()
-    records["trbf"][:, 0] = (model.t_means.double().numpy() - t0) / span
-    records["trbf"][:, 1] = np.maximum(np.sqrt(2.0 * var_t.numpy()) / span, MIN_WIDTH)
-    importance = scales.prod(1).numpy() * opacity.numpy()
+    records["position"] = g.means
+    records["rotation"] = g.quats
+    records["scale"][:, :3] = g.scales
+    records["rgba"][:, :3] = np.round(g.dc_rgb * 255.0)
+    records["rgba"][:, 3] = np.round(g.opacity * 255.0)
+    records["motion"][:, :3] = g.velocity * span
+    records["trbf"][:, 0] = (g.t_means - t0) / span
+    records["trbf"][:, 1] = np.maximum(np.sqrt(2.0 * g.var_t) / span, MIN_WIDTH)
+    importance = g.scales.prod(1) * g.opacity
     return records[np.argsort(-importance, kind="stable")]
 
 

@@ -106,6 +106,8 @@ _READERS: list[Reader] = [
            "splatreel.importers:sniff_ply_sequence", "splatreel.importers.ply:read_ply_sequence"),
     Reader("splatv", "splaTV / gsplat.js .splatv (Spacetime Gaussians lite)",
            "splatreel.importers.splatv:sniff", "splatreel.importers.splatv:read_splatv"),
+    Reader("4dgs", ".4dgs container (fourdgs package)",
+           "splatreel.importers.four_dgs:sniff", "splatreel.importers.four_dgs:read_four_dgs"),
     Reader("splatreel", "splatreel checkpoint (.safetensors)",
            "splatreel.formats:is_safetensors", "splatreel.formats:read_native"),
 ]
@@ -122,6 +124,8 @@ _WRITERS: list[Writer] = [
            "OUT.glb|OUTDIR", "splatreel.export.gltf"),
     Writer("splatv", "the whole native 4D model as one .splatv for the splaTV / gsplat.js web players (DC colour)",
            "OUT.splatv", "splatreel.export.splatv", sampled=False),
+    Writer("4dgs", "the whole native 4D model as one .4dgs container (the fourdgs package's format)", "OUT.4dgs",
+           "splatreel.export.four_dgs", sampled=False),
 ]
 
 

@@ -60,6 +60,9 @@ class MeshOptions:
         color_neighbors: Gaussians blended into each vertex colour (>= 1).
         usd: also write ``mesh_sequence.usd``.
         fps, up_axis, meters_per_unit: metadata of ``mesh_sequence.usd`` and the manifest.
+        deforming: one mesh whose vertices move (`splatreel.export.deforming`) instead of one surface per frame.
+        reference_time: with `deforming`, the model time at which the surface is extracted (None: the frame that
+            shows the most).
     """
 
     format: str = "ply"
@@ -71,6 +74,8 @@ class MeshOptions:
     fps: float = 24.0
     up_axis: str = "Y"
     meters_per_unit: float = 1.0
+    deforming: bool = False
+    reference_time: float | None = None
 
     def __post_init__(self) -> None:
         if self.format not in MESH_FORMATS:
@@ -296,6 +301,7 @@ class _UsdMeshSequence:
     def __init__(self, times: Sequence[float], options: MeshOptions):
         from pxr import Usd, UsdGeom
 
+        self.constant_topology = options.deforming  # faces authored once, not per time sample
         from .usd import ROOT, configure_stage
 
         self.stage = Usd.Stage.CreateInMemory()
@@ -313,10 +319,19 @@ class _UsdMeshSequence:
 
         m = self.mesh
         _author(m.GetPointsAttr(), _vec3f(mesh.vertices), index)
-        _author(m.GetFaceVertexCountsAttr(), Vt.IntArray.FromNumpy(np.full(len(mesh.faces), 3, np.int32)), index)
-        _author(m.GetFaceVertexIndicesAttr(), Vt.IntArray.FromNumpy(mesh.faces.astype(np.int32).reshape(-1)), index)
+        counts = Vt.IntArray.FromNumpy(np.full(len(mesh.faces), 3, np.int32))
+        indices = Vt.IntArray.FromNumpy(mesh.faces.astype(np.int32).reshape(-1))
+        colors = _vec3f(srgb_to_linear(mesh.colors))
+        if self.constant_topology:  # one topology and colour: default values, which every time code reads
+            if index == 0:
+                m.GetFaceVertexCountsAttr().Set(counts)
+                m.GetFaceVertexIndicesAttr().Set(indices)
+                self.color.GetAttr().Set(colors)
+        else:
+            _author(m.GetFaceVertexCountsAttr(), counts, index)
+            _author(m.GetFaceVertexIndicesAttr(), indices, index)
+            _author(self.color.GetAttr(), colors, index)
         _author(m.GetNormalsAttr(), _vec3f(mesh.normals), index)
-        _author(self.color.GetAttr(), _vec3f(srgb_to_linear(mesh.colors)), index)
         _author(m.GetExtentAttr(), _vec3f(box_of(mesh.vertices, 0.0)), index)
 
 
@@ -340,13 +355,22 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
     grid = sequence_grid(model, times, options.resolution, progress)
     usd = _UsdMeshSequence(times, options) if options.usd else None
     names: list[str] = []
+    drift = None
+    if options.deforming:
+        from .deforming import deforming_meshes
+
+        reference = None if options.reference_time is None else \
+            int(np.argmin(np.abs(np.asarray(times, np.float64) - options.reference_time)))
+        meshes, drift = deforming_meshes(model, times, grid, options, reference, progress)
+    else:
+        meshes = (frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill)
+                  for frame in iter_frames(model, times, progress, desc="mesh"))
     with atomic_dir(outdir, force) as tmp:
-        for frame in iter_frames(model, times, progress, desc="mesh"):
-            mesh = frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill)
-            names.append(frame_file_name("mesh", frame.index, options.format))
+        for index, mesh in enumerate(meshes):
+            names.append(frame_file_name("mesh", index, options.format))
             (tmp / names[-1]).write_bytes(mesh_bytes(mesh, options.format, options.up_axis))
             if usd is not None:
-                usd.add(frame.index, mesh)
+                usd.add(index, mesh)
         extra = []
         if usd is not None:
             from .usd import save_stage
@@ -360,13 +384,14 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             grid={"origin": grid.origin.tolist(), "voxel": grid.voxel, "shape": list(grid.shape)},
             up_axis=options.up_axis, meters_per_unit=options.meters_per_unit,
             mesh_up_axis="Y" if options.format in Y_UP_FORMATS else options.up_axis,
-            vertex_colors="linear" if options.format == "glb" else "srgb", usd=extra[0] if extra else None))
+            vertex_colors="linear" if options.format == "glb" else "srgb", usd=extra[0] if extra else None,
+            topology="constant (deforming)" if options.deforming else "per frame", deforming=drift))
     return [outdir / n for n in names + extra + ["manifest.json"]]
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     """The format's own options of ``splatreel export mesh`` (its entry in `splatreel.formats`)."""
-    from splatreel.argtypes import count, positive_number
+    from splatreel.argtypes import count, finite_number, positive_number
 
     p.add_argument("--format", choices=MESH_FORMATS, default="ply", help="per-frame mesh format (default ply)")
     p.add_argument("--resolution", type=count, default=128,
@@ -377,6 +402,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--color-neighbors", type=count, default=8,
                    help="nearest Gaussians blended into each vertex colour (default 8)")
     p.add_argument("--no-usd", action="store_true", help="do not write mesh_sequence.usd")
+    p.add_argument("--deforming", action="store_true",
+                   help="one mesh whose vertices move with the model (the same faces at every frame, which DCC "
+                        "tools animate as one object) instead of one surface per frame")
+    p.add_argument("--reference-time", type=finite_number, default=None, metavar="T",
+                   help="with --deforming: the model time whose surface is carried through the animation "
+                        "(default: the frame that shows the most)")
 
 
 def run(model, times, out, args) -> list[Path]:
@@ -387,5 +418,8 @@ def run(model, times, out, args) -> list[Path]:
     options = MeshOptions(format=args.format, resolution=args.resolution, iso=args.iso, fill=not args.no_fill,
                           color_neighbors=args.color_neighbors, usd=not args.no_usd, fps=args.fps,
                           up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)),
-                          meters_per_unit=args.meters_per_unit)
+                          meters_per_unit=args.meters_per_unit, deforming=args.deforming,
+                          reference_time=args.reference_time)
+    if args.reference_time is not None and not args.deforming:
+        raise ExportError("--reference-time picks the surface --deforming carries; add --deforming")
     return write_mesh_sequence(model, out, times, options, force=args.force, progress=args.progress)

@@ -1,0 +1,183 @@
+"""One mesh that deforms over time (``export mesh --deforming``): one topology for every frame, so DCC tools see one
+object whose vertices move (motion blur, UVs and simulation on top) instead of a new object each frame.
+
+The surface is extracted once (`splatreel.export.mesh.frame_mesh`) at the reference frame, by default the frame
+whose Gaussians show the most opacity. Each vertex is then carried by the Gaussians around it, one frame step at a
+time away from the reference (both ways): its `CARRIERS` nearest live Gaussians at the frame the step starts from,
+weighted by their opacity-weighted density at the vertex (as the vertex colours are), move it by the weighted mean
+of their own displacements over the step (for native 4D Gaussians the conditional means, which move linearly; for
+keyframed models the interpolated keys). Stepping matters: native 4D Gaussians live briefly, so the Gaussians that
+carry a vertex change along the way. Each step's displacement field is smoothed over the mesh (`SMOOTHING_STEPS`
+of Laplacian averaging) so that neighbouring vertices carried by different Gaussians do not crumple the surface.
+
+Drift: at up to `DRIFT_FRAMES` frames the deformed surface is compared with the surface extracted at that frame
+(mean two-way nearest-vertex distance, as a share of the grid's diagonal). Above `DRIFT_WARNING`, or where the
+extracted surface has a different number of pieces (a split or a merge), the export says so and suggests per-frame
+meshes for that span; the manifest records every measured frame.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from .base import iter_frames
+
+#: Gaussians that carry each vertex
+CARRIERS = 16
+#: Laplacian averaging steps of a displacement field (each mixes a vertex half-way to its neighbours' mean)
+SMOOTHING_STEPS = 40
+#: tangential relaxation steps after each frame's vertices are drawn onto its surface
+RELAX_STEPS = 3
+#: frames at which the drift from the per-frame surface is measured
+DRIFT_FRAMES = 8
+#: drift (share of the grid's diagonal) above which the export warns
+DRIFT_WARNING = 0.02
+
+
+def reference_frame(model, times: Sequence[float]) -> int:
+    """Index of the frame whose Gaussians show the most opacity in total (the most surface to extract)."""
+    return int(np.argmax([float(f.opacities.sum()) for f in iter_frames(model, times)]))
+
+
+def carriers(vertices: np.ndarray, frame, dilation: float, k: int = CARRIERS) -> tuple[np.ndarray, np.ndarray]:
+    """(``[V, k]`` Gaussian indices, ``[V, k]`` weights summing to 1) of the Gaussians of `frame` that carry each
+    vertex: their opacity-weighted density at the vertex (the nearest alone where every weight vanishes)."""
+    from scipy.spatial import cKDTree
+
+    from .mesh import inverse_covariances
+
+    live = np.flatnonzero(frame.opacities > 0)
+    k = min(k, len(live))
+    means = frame.means[live].astype(np.float64)
+    _, near = cKDTree(means).query(vertices, k=k)
+    near = near.reshape(len(vertices), k)
+    inv = inverse_covariances(frame.scales[live], frame.quats[live], dilation)
+    d = vertices[:, None, :] - means[near]
+    q = np.einsum("vki,vkij,vkj->vk", d, inv[near], d)
+    w = frame.opacities[live][near].astype(np.float64) * np.exp(-0.5 * np.minimum(q, 1e4))
+    total = w.sum(1, keepdims=True)
+    nearest_only = np.zeros_like(w)
+    nearest_only[:, 0] = 1.0
+    w = np.where(total > 1e-30, w / np.maximum(total, 1e-300), nearest_only)
+    return live[near], w
+
+
+def vertex_neighbours(faces: np.ndarray, count: int):
+    """Row-normalised ``[V, V]`` sparse adjacency of the mesh's vertices (each row averages its neighbours)."""
+    from scipy import sparse
+
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    adjacency = sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(count, count)).tocsr()
+    adjacency.data[:] = 1.0  # an edge shared by two faces counts once
+    degree = np.asarray(adjacency.sum(1)).ravel()
+    return sparse.diags(1.0 / np.maximum(degree, 1.0)) @ adjacency
+
+
+def smooth(displacement: np.ndarray, neighbours, steps: int = SMOOTHING_STEPS) -> np.ndarray:
+    """`steps` of Laplacian averaging of a per-vertex field ``[V, 3]`` (each step half-way to the neighbours' mean)."""
+    for _ in range(steps):
+        displacement = 0.5 * displacement + 0.5 * (neighbours @ displacement)
+    return displacement
+
+
+def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``[V, 3]`` area-weighted unit vertex normals."""
+    import trimesh
+
+    return np.asarray(trimesh.Trimesh(vertices, faces, process=False).vertex_normals, np.float64)
+
+
+def relax(vertices: np.ndarray, faces: np.ndarray, neighbours, steps: int = RELAX_STEPS) -> np.ndarray:
+    """Even out the vertex spacing without changing the shape: Laplacian steps with their normal part removed."""
+    for _ in range(steps):
+        normals = unit_normals(vertices, faces)
+        pull = neighbours @ vertices - vertices
+        vertices = vertices + 0.5 * (pull - (pull * normals).sum(1, keepdims=True) * normals)
+    return vertices
+
+
+def onto_surface(points: np.ndarray, surface) -> np.ndarray:
+    """The nearest vertex of `surface` (a `FrameMesh` from marching cubes, whose vertices lie about a voxel apart) to
+    each of `points` (`points` itself where the surface is empty)."""
+    from scipy.spatial import cKDTree
+
+    if not len(surface.vertices):
+        return points
+    return surface.vertices[cKDTree(surface.vertices).query(points)[1]].astype(np.float64)
+
+
+def mean_surface_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean two-way nearest-vertex distance between two vertex sets (inf when one is empty)."""
+    from scipy.spatial import cKDTree
+
+    if not len(a) or not len(b):
+        return float("inf")
+    return 0.5 * (float(cKDTree(b).query(a)[0].mean()) + float(cKDTree(a).query(b)[0].mean()))
+
+
+def deforming_meshes(model, times: Sequence[float], grid, options, reference: int | None = None,
+                     progress: bool = False) -> tuple[list, dict]:
+    """(one `FrameMesh` per time, all with the reference frame's faces; the drift report) of `model` on `grid`
+    (`splatreel.export.mesh.MeshOptions` `options`: iso, fill, colour neighbours)."""
+    import trimesh
+
+    from .mesh import DILATION_VOXELS, frame_mesh
+
+    times = [float(t) for t in times]
+    ref = reference_frame(model, times) if reference is None else int(reference)
+    frames = list(iter_frames(model, times, progress, desc="mesh frames"))
+    base = frame_mesh(frames[ref], grid, options.iso, options.color_neighbors, options.fill)
+    if not len(base.faces):
+        return [base for _ in times], {"reference_frame": ref, "reference_time": times[ref], "frames": []}
+    dilation = (DILATION_VOXELS * grid.voxel) ** 2
+    neighbours = vertex_neighbours(base.faces, len(base.vertices))
+    vertices = {ref: base.vertices}
+    surfaces = {}
+    # frame by frame away from the reference, both ways: native 4D Gaussians live briefly, so each step is carried
+    # by the Gaussians alive at the frame it starts from; then the vertices are drawn onto that frame's own surface
+    for step in (1, -1):
+        for i in range(ref + step, len(frames) if step > 0 else -1, step):
+            start, here = frames[i - step], vertices[i - step]
+            idx, w = carriers(here, start, dilation)
+            moved = frames[i].means.astype(np.float64) - start.means.astype(np.float64)
+            carried = here + smooth((w[..., None] * moved[idx]).sum(1), neighbours)
+            surfaces[i] = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill)
+            offset = onto_surface(carried, surfaces[i]) - carried  # smoothed below: no vertex jumps alone
+            vertices[i] = relax(carried + smooth(offset, neighbours), base.faces, neighbours)
+    meshes = []
+    for i in range(len(frames)):
+        normals = np.asarray(trimesh.Trimesh(vertices[i], base.faces, process=False).vertex_normals, np.float64)
+        meshes.append(replace(base, vertices=vertices[i], normals=normals))
+    return meshes, drift_report(meshes, frames, grid, options, ref, times)
+
+
+def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]) -> dict:
+    """How far the deformed surface is from the surface extracted at up to `DRIFT_FRAMES` frames (see module doc);
+    warns (one line) where it drifts past `DRIFT_WARNING` or the pieces change."""
+    import trimesh
+
+    from .mesh import frame_mesh
+
+    diagonal = float(np.linalg.norm(np.asarray(grid.shape) * grid.voxel))
+    pieces = lambda m: len(trimesh.Trimesh(m.vertices, m.faces, process=False).split(only_watertight=False))  # noqa
+    base_pieces = pieces(meshes[ref])
+    measured = []
+    for i in sorted(set(np.linspace(0, len(frames) - 1, min(DRIFT_FRAMES, len(frames))).round().astype(int))):
+        truth = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill)
+        measured.append({"frame": int(i), "time": float(times[i]),
+                         "drift": mean_surface_distance(meshes[i].vertices, truth.vertices) / diagonal,
+                         "pieces": pieces(truth) if len(truth.faces) else 0})
+    bad = [m for m in measured if m["drift"] > DRIFT_WARNING or m["pieces"] != base_pieces]
+    if bad:
+        span = f"t = {bad[0]['time']:g} .. {bad[-1]['time']:g}"
+        worst = max(m["drift"] for m in bad)
+        warnings.warn(f"the deforming mesh drifts from the model's surface by up to {worst:.1%} of its size, or the "
+                      f"surface splits or merges, at {span}: export per-frame meshes (without --deforming) for that "
+                      "span", stacklevel=2)
+    return {"reference_frame": ref, "reference_time": float(times[ref]), "pieces": base_pieces,
+            "max_drift": max(m["drift"] for m in measured), "frames": measured}

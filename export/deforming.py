@@ -181,3 +181,58 @@ def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]
                       "span", stacklevel=2)
     return {"reference_frame": ref, "reference_time": float(times[ref]), "pieces": base_pieces,
             "max_drift": max(m["drift"] for m in measured), "frames": measured}
+
+
+def morph_animation_glb(meshes, fps: float, up_axis: str = "Y") -> bytes:
+    """One glTF binary of a deforming mesh (same faces at every frame): the reference frame's mesh with one morph
+    target per frame (the displacement of its points and normals) and an animation of the morph weights, one-hot
+    per frame and linear in between, at `fps` (glTF 2.0 §3.7.2.2 morph targets, §3.11 animations). Blender,
+    three.js and game engines play it; glTF is +Y up, so a +Z-up model is turned (`to_y_up`)."""
+    import pygltflib as gl
+
+    from splatreel.colorspace import srgb_to_linear
+
+    from .base import to_y_up
+
+    base = meshes[0]
+    positions = [to_y_up(m.vertices, up_axis).astype(np.float32) for m in meshes]
+    normals = [to_y_up(m.normals, up_axis).astype(np.float32) for m in meshes]
+    frames = len(meshes)
+    blob, views, accessors = bytearray(), [], []
+
+    def add(data: np.ndarray, kind: str, target: int | None, bounds: bool = False) -> int:
+        data = np.ascontiguousarray(data)
+        views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=data.nbytes, target=target))
+        blob.extend(data.tobytes())
+        blob.extend(b"\0" * (-len(blob) % 4))
+        component = {np.dtype(np.float32): gl.FLOAT, np.dtype(np.uint32): gl.UNSIGNED_INT}[data.dtype]
+        count = data.shape[0] if kind != "SCALAR" or data.ndim == 1 else data.size
+        accessor = gl.Accessor(bufferView=len(views) - 1, componentType=component, count=count, type=kind)
+        if bounds:
+            flat = data.reshape(count, -1)
+            accessor.min, accessor.max = flat.min(0).tolist(), flat.max(0).tolist()
+        accessors.append(accessor)
+        return len(accessors) - 1
+
+    array_buffer, element_buffer = 34962, 34963
+    rgba = np.concatenate([srgb_to_linear(base.colors), np.ones((len(base.colors), 1))], 1).astype(np.float32)
+    attributes = {"POSITION": add(positions[0], "VEC3", array_buffer, bounds=True),
+                  "NORMAL": add(normals[0], "VEC3", array_buffer), "COLOR_0": add(rgba, "VEC4", array_buffer)}
+    indices = add(base.faces.astype(np.uint32).reshape(-1), "SCALAR", element_buffer)
+    targets = [{"POSITION": add(p - positions[0], "VEC3", array_buffer, bounds=True),
+                "NORMAL": add(n - normals[0], "VEC3", array_buffer)} for p, n in zip(positions, normals)]
+    times = add((np.arange(frames) / fps).astype(np.float32), "SCALAR", None, bounds=True)
+    weights = add(np.eye(frames, dtype=np.float32).reshape(-1), "SCALAR", None)
+    primitive = gl.Primitive(attributes=gl.Attributes(), indices=indices, mode=4, targets=targets)
+    primitive.attributes = attributes
+    doc = gl.GLTF2(
+        asset=gl.Asset(version="2.0", generator="splatreel"), scene=0, scenes=[gl.Scene(nodes=[0])],
+        nodes=[gl.Node(mesh=0, name="deforming")],
+        meshes=[gl.Mesh(primitives=[primitive], weights=[1.0] + [0.0] * (frames - 1), name="deforming")],
+        animations=[gl.Animation(name="deform", samplers=[gl.AnimationSampler(input=times, output=weights,
+                                                                                interpolation="LINEAR")],
+                                 channels=[gl.AnimationChannel(sampler=0, target=gl.AnimationChannelTarget(
+                                     node=0, path="weights"))])],
+        accessors=accessors, bufferViews=views, buffers=[gl.Buffer(byteLength=len(blob))])
+    doc.set_binary_blob(bytes(blob))
+    return b"".join(doc.save_to_bytes())

@@ -372,6 +372,11 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             if usd is not None:
                 usd.add(index, mesh)
         extra = []
+        if options.deforming:
+            from .deforming import morph_animation_glb
+
+            (tmp / "mesh_animation.glb").write_bytes(morph_animation_glb(meshes, options.fps, options.up_axis))
+            extra.append("mesh_animation.glb")
         if usd is not None:
             from .usd import save_stage
 
@@ -384,7 +389,9 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             grid={"origin": grid.origin.tolist(), "voxel": grid.voxel, "shape": list(grid.shape)},
             up_axis=options.up_axis, meters_per_unit=options.meters_per_unit,
             mesh_up_axis="Y" if options.format in Y_UP_FORMATS else options.up_axis,
-            vertex_colors="linear" if options.format == "glb" else "srgb", usd=extra[0] if extra else None,
+            vertex_colors="linear" if options.format == "glb" else "srgb",
+            usd="mesh_sequence.usd" if usd is not None else None,
+            animation="mesh_animation.glb" if options.deforming else None,
             topology="constant (deforming)" if options.deforming else "per frame", deforming=drift))
     return [outdir / n for n in names + extra + ["manifest.json"]]
 

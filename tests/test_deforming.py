@@ -12,6 +12,8 @@ from splatreel.export import frame_times
 from splatreel.export.mesh import MeshOptions, write_mesh_sequence
 from splatreel.samples import build_model, mesh_at
 
+from test_gltf import validate  # noqa: F401  (the Khronos glTF-Validator fixture)
+
 FRAMES = 8
 
 
@@ -70,3 +72,33 @@ def test_the_cli_takes_a_reference_time_only_with_deforming(tmp_path, capsys):
     assert main(["export", "mesh", str(ckpt), "--out", str(out), "--frame-count", "4", "--resolution", "24",
                  "--deforming", "--reference-time", "1", "--quiet"]) == 0
     assert json.loads((out / "manifest.json").read_text())["deforming"]["reference_frame"] == 3
+
+
+def test_the_morph_target_animation_plays_the_frames_and_validates(tmp_path, validate):
+    import pygltflib as gl
+    import trimesh
+
+    model = build_model("wave", num_gaussians=6000)
+    times = frame_times(model.time_range, 5)
+    paths = write_mesh_sequence(model, tmp_path / "d", times,
+                                MeshOptions(resolution=32, deforming=True, usd=False, up_axis="Z", fps=10.0))
+    glb = next(p for p in paths if p.name == "mesh_animation.glb")
+    doc = gl.GLTF2().load(str(glb))
+    blob = doc.binary_blob()
+
+    def read(index):
+        acc = doc.accessors[index]
+        width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}[acc.type]
+        view = doc.bufferViews[acc.bufferView]
+        return np.frombuffer(blob, np.float32, acc.count * width, view.byteOffset).reshape(acc.count, width)
+
+    prim = doc.meshes[0].primitives[0]
+    assert len(prim.targets) == 5 and doc.animations[0].channels[0].target.path == "weights"
+    np.testing.assert_allclose(read(doc.animations[0].samplers[0].input)[:, 0], np.arange(5) / 10.0)
+    base = read(prim.attributes.POSITION)
+    for k, path in enumerate(paths[:5]):  # frame k = base + target k, turned +Y up
+        v = trimesh.load(path, process=False).vertices
+        want = np.stack([v[:, 0], v[:, 2], -v[:, 1]], 1)
+        np.testing.assert_allclose(base + read(prim.targets[k]["POSITION"]), want, atol=1e-5)
+    report = validate(glb)[0]
+    assert report["numErrors"] == 0 and report["numWarnings"] == 0, report["messages"][:5]

@@ -131,7 +131,8 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
     times = [float(t) for t in times]
     ref = reference_frame(model, times) if reference is None else int(reference)
     frames = list(iter_frames(model, times, progress, desc="mesh frames"))
-    base = frame_mesh(frames[ref], grid, options.iso, options.color_neighbors, options.fill)
+    base = frame_mesh(frames[ref], grid, options.iso, options.color_neighbors, options.fill,
+                      options.min_piece_share)
     if not len(base.faces):
         return [base for _ in times], {"reference_frame": ref, "reference_time": times[ref], "frames": []}
     dilation = (DILATION_VOXELS * grid.voxel) ** 2
@@ -146,7 +147,8 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
             idx, w = carriers(here, start, dilation)
             moved = frames[i].means.astype(np.float64) - start.means.astype(np.float64)
             carried = here + smooth((w[..., None] * moved[idx]).sum(1), neighbours)
-            surfaces[i] = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill)
+            surfaces[i] = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
+                                     options.min_piece_share)
             offset = onto_surface(carried, surfaces[i]) - carried  # smoothed below: no vertex jumps alone
             vertices[i] = relax(carried + smooth(offset, neighbours), base.faces, neighbours)
     meshes = []
@@ -168,7 +170,8 @@ def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]
     base_pieces = pieces(meshes[ref])
     measured = []
     for i in sorted(set(np.linspace(0, len(frames) - 1, min(DRIFT_FRAMES, len(frames))).round().astype(int))):
-        truth = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill)
+        truth = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
+                                     options.min_piece_share)
         measured.append({"frame": int(i), "time": float(times[i]),
                          "drift": mean_surface_distance(meshes[i].vertices, truth.vertices) / diagonal,
                          "pieces": pieces(truth) if len(truth.faces) else 0})

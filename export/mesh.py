@@ -76,6 +76,8 @@ class MeshOptions:
     meters_per_unit: float = 1.0
     deforming: bool = False
     reference_time: float | None = None
+    #: pieces with less than this share of a frame's surface area are dropped (floaters); 0 keeps them all
+    min_piece_share: float = 0.02
 
     def __post_init__(self) -> None:
         if self.format not in MESH_FORMATS:
@@ -248,8 +250,27 @@ class FrameMesh:
                                process=False)
 
 
+def largest_pieces(vertices: np.ndarray, faces: np.ndarray, min_share: float) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) without the connected pieces whose area is below `min_share` of the whole surface's
+    (floaters: a trained model's stray Gaussians each make a small blob); `min_share` 0 keeps every piece."""
+    import trimesh
+
+    if min_share <= 0 or not len(faces):
+        return vertices, faces
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
+    area = np.bincount(labels, weights=mesh.area_faces)
+    keep_faces = area[labels] >= min_share * area.sum()
+    if keep_faces.all():
+        return vertices, faces
+    used = np.unique(faces[keep_faces])
+    remap = np.full(len(vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return vertices[used], remap[faces[keep_faces]]
+
+
 def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors: int = 8,
-               fill: bool = True) -> FrameMesh:
+               fill: bool = True, min_piece_share: float = 0.0) -> FrameMesh:
     """The surface of one frame on `grid` (see module doc)."""
     import trimesh
 
@@ -261,7 +282,7 @@ def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors:
     field = density_field(grid, means, inv, frame.opacities[live], radii)
     if fill:
         field = fill_cavities(field, iso)
-    vertices, faces = extract_surface(field, grid, iso)
+    vertices, faces = largest_pieces(*extract_surface(field, grid, iso), min_piece_share)
     if faces.shape[0] == 0:
         z = np.zeros((0, 3))
         return FrameMesh(z, np.zeros((0, 3), np.int64), z, z.astype(np.float32))
@@ -363,7 +384,8 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             int(np.argmin(np.abs(np.asarray(times, np.float64) - options.reference_time)))
         meshes, drift = deforming_meshes(model, times, grid, options, reference, progress)
     else:
-        meshes = (frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill)
+        meshes = (frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill,
+                             options.min_piece_share)
                   for frame in iter_frames(model, times, progress, desc="mesh"))
     with atomic_dir(outdir, force) as tmp:
         for index, mesh in enumerate(meshes):
@@ -409,6 +431,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--color-neighbors", type=count, default=8,
                    help="nearest Gaussians blended into each vertex colour (default 8)")
     p.add_argument("--no-usd", action="store_true", help="do not write mesh_sequence.usd")
+    p.add_argument("--keep-all-pieces", action="store_true",
+                   help="keep every piece of the surface (default: drop pieces under 2%% of a frame's surface area, "
+                        "the floaters a trained model's stray Gaussians make)")
     p.add_argument("--deforming", action="store_true",
                    help="one mesh whose vertices move with the model (the same faces at every frame, which DCC "
                         "tools animate as one object) instead of one surface per frame")
@@ -426,6 +451,7 @@ def run(model, times, out, args) -> list[Path]:
                           color_neighbors=args.color_neighbors, usd=not args.no_usd, fps=args.fps,
                           up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)),
                           meters_per_unit=args.meters_per_unit, deforming=args.deforming,
+                          min_piece_share=0.0 if args.keep_all_pieces else MeshOptions.min_piece_share,
                           reference_time=args.reference_time)
     if args.reference_time is not None and not args.deforming:
         raise ExportError("--reference-time picks the surface --deforming carries; add --deforming")

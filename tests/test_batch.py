@@ -76,3 +76,39 @@ def test_a_batch_runs_reports_the_corrupt_job_alone_and_skips_finished_jobs(inpu
     assert main(args + ["--retry-failed"]) == 0
     assert json.loads((out / "report.json").read_text())["jobs"]["broken"]["status"] == "done"
     assert (out / "model" / "render.mp4").stat().st_mtime_ns == stamp
+
+
+@pytest.fixture(scope="module")
+def ray_cluster(tmp_path_factory):
+    """A real local Ray cluster: `ray start --head` bound to 127.0.0.1 with two CPUs, stopped at the end."""
+    import os
+    import shutil
+    import socket
+    import subprocess
+    import sys
+
+    ray = shutil.which("ray", path=os.path.dirname(sys.executable)) or "ray"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_TMPDIR": str(tmp_path_factory.mktemp("ray"))}
+    subprocess.run([ray, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
+                    "--include-dashboard=false", "--disable-usage-stats"], check=True, env=env, capture_output=True,
+                   timeout=180)
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        subprocess.run([ray, "stop", "--force"], env=env, capture_output=True, timeout=120)
+
+
+def test_the_same_batch_on_a_ray_cluster_gives_the_same_report(inputs, tmp_path, ray_cluster):
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    (inputs / "broken.safetensors").write_bytes(b"not a checkpoint")  # as the first test found it
+    assert main(["batch", str(inputs / "jobs.yaml"), "--out", str(local), "--workers", "2", "--quiet"]) == 1
+    assert main(["batch", str(inputs / "jobs.yaml"), "--out", str(remote), "--ray", ray_cluster, "--quiet"]) == 1
+    a = json.loads((local / "report.json").read_text())["jobs"]
+    b = json.loads((remote / "report.json").read_text())["jobs"]
+    assert {n: e["status"] for n, e in a.items()} == {n: e["status"] for n, e in b.items()}
+    assert a["broken"]["error"] == b["broken"]["error"]
+    assert sorted(p.relative_to(local).as_posix() for p in local.rglob("*") if p.is_file()) == \
+        sorted(p.relative_to(remote).as_posix() for p in remote.rglob("*") if p.is_file())

@@ -103,53 +103,105 @@ def write_report(out: Path, report: dict, order: list[str] | None = None) -> Non
     atomic_write_bytes(out / SUMMARY, buffer.getvalue().encode(), force=True)
 
 
-def run_batch(jobs: list[Job], out: str | Path, workers: int = 1, threads: int = 1, retry_failed: bool = False,
-              progress: bool = True) -> dict:
-    """Run `jobs` into `out` (see module doc); returns the report (``jobs``: name -> entry)."""
-    import multiprocessing
-
-    from tqdm import tqdm
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    report = load_report(out)
-    report.setdefault("jobs", {})
-    order = [job.name for job in jobs]
+def pending_jobs(jobs: list[Job], report: dict, retry_failed: bool) -> list[Job]:
+    """The jobs to run: not done (or done with outputs gone), and failed ones only with `retry_failed`."""
     todo = []
     for job in jobs:
         entry = report["jobs"].get(job.name)
         if is_done(entry) or (entry and entry.get("status") == "failed" and not retry_failed):
             continue
         todo.append(job)
-    counts = {"done": sum(is_done(report["jobs"].get(j.name)) for j in jobs),
-              "failed": sum((report["jobs"].get(j.name) or {}).get("status") == "failed" for j in jobs
-                            if j not in todo)}
+    return todo
+
+
+def run_batch(jobs: list[Job], out: str | Path, workers: int = 1, threads: int = 1, retry_failed: bool = False,
+              progress: bool = True, ray_address: str | None = None) -> dict:
+    """Run `jobs` into `out` (see module doc): in `workers` local processes, or as tasks of the Ray cluster at
+    `ray_address` (each declaring `threads` CPUs; `out` must be a path every node sees). Returns the report
+    (``jobs``: name -> entry)."""
+    from tqdm import tqdm
+
+    out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    report = load_report(out)
+    report.setdefault("jobs", {})
+    order = [job.name for job in jobs]
+    todo = pending_jobs(jobs, report, retry_failed)
+    counts = {"done": sum(is_done(report["jobs"].get(n)) for n in order)}
+    counts["failed"] = sum((report["jobs"].get(j.name) or {}).get("status") == "failed" for j in jobs
+                           if j not in todo)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="batch", unit="job", disable=not progress)
     bar.set_postfix(done=counts["done"], failed=counts["failed"], left=len(todo))
+
+    def finished(job: Job, entry: dict, left: int) -> None:
+        report["jobs"][job.name] = entry
+        counts["done" if entry["status"] == "done" else "failed"] += 1
+        write_report(out, report, order)
+        bar.update(1)
+        bar.set_postfix(done=counts["done"], failed=counts["failed"], left=left)
+
+    try:
+        if ray_address is None:
+            _run_local(todo, out, workers, threads, finished)
+        else:
+            _run_ray(todo, out, ray_address, threads, finished)
+    finally:
+        write_report(out, report, order)
+        bar.close()
+    return report
+
+
+def _failed(job: Job, exc: BaseException) -> dict:
+    return {"name": job.name, "input": job.input, "status": "failed", "steps": [],
+            "error": f"the worker stopped: {type(exc).__name__}: {exc}"}
+
+
+def _run_local(todo: list[Job], out: Path, workers: int, threads: int, finished) -> None:
+    import multiprocessing
+
     # spawn: each worker starts clean (no forked torch/OpenMP state)
     with ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn")) as pool:
         pending = {pool.submit(run_job, job, str(out / job.name), threads): job for job in todo}
         try:
             while pending:
-                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for future in finished:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
                     job = pending.pop(future)
                     try:
                         entry = future.result()
                     except Exception as exc:  # noqa: BLE001  (a worker that died)
-                        entry = {"name": job.name, "input": job.input, "status": "failed", "steps": [],
-                                 "error": f"the worker stopped: {type(exc).__name__}: {exc}"}
-                    report["jobs"][job.name] = entry
-                    counts["done" if entry["status"] == "done" else "failed"] += 1
-                    write_report(out, report, order)
-                    bar.update(1)
-                    bar.set_postfix(done=counts["done"], failed=counts["failed"], left=len(pending))
+                        entry = _failed(job, exc)
+                    finished(job, entry, len(pending))
         except KeyboardInterrupt:
-            for future in pending:
-                future.cancel()
             pool.shutdown(wait=False, cancel_futures=True)
-            write_report(out, report, order)
             raise
-    bar.close()
-    write_report(out, report, order)
-    return report
+
+
+def _run_ray(todo: list[Job], out: Path, address: str, threads: int, finished) -> None:
+    """Each job a Ray task declaring `threads` CPUs (``ray[default]``, the optional extra ``splatreel[ray]``)."""
+    try:
+        import ray
+    except ImportError:
+        from ..errors import SplatreelError
+
+        raise SplatreelError("--ray needs Ray: pip install 'splatreel[ray]'") from None
+    ray.init(address=address, logging_level="ERROR", log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=threads)(run_job)
+        pending = {task.remote(job, str(out / job.name), threads): job for job in todo}
+        try:
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    job = pending.pop(ref)
+                    try:
+                        entry = ray.get(ref)
+                    except Exception as exc:  # noqa: BLE001  (a task or node that died)
+                        entry = _failed(job, exc)
+                    finished(job, entry, len(pending))
+        except KeyboardInterrupt:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
+    finally:
+        ray.shutdown()

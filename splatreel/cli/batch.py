@@ -29,6 +29,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=count, default=1, metavar="T",
                    help="CPU threads per job (default 1; workers x threads should fit the cores)")
     p.add_argument("--retry-failed", action="store_true", help="run the jobs that failed before again")
+    p.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="run each job as a task of the Ray cluster at ADDRESS (host:port, or 'auto'), each declaring "
+                        "--threads CPUs; DIR and the inputs must be on a path every node sees (needs splatreel[ray])")
     p.add_argument("--dry-run", action="store_true", help="print each job's commands and run nothing")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     workers = args.workers or max(1, (os.cpu_count() or 1) // args.threads)
     report = run_batch(jobs, args.out, workers=workers, threads=args.threads, retry_failed=args.retry_failed,
-                       progress=not args.quiet)
+                       progress=not args.quiet, ray_address=args.ray)
     entries = [report["jobs"][j.name] for j in jobs if j.name in report["jobs"]]
     failed = [e for e in entries if e["status"] == "failed"]
     for e in failed:

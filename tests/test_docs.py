@@ -24,6 +24,7 @@ FOREIGN_OPTIONS = {
     "--loaded_pth",  # official 4DGS: the option that reads a checkpoint dict
     "--json", "--rounds", "--ref-full",  # bench/*.py
     "--strict",  # mkdocs build
+    "--head", "--node-ip-address", "--num-cpus", "--port",  # ray start
 }
 
 

@@ -22,7 +22,9 @@ from .jobs import Job, commands
 
 REPORT = "report.json"
 SUMMARY = "summary.csv"
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
+# LP_NUM_THREADS: Mesa llvmpipe, the OpenGL of render on a CPU, otherwise starts a thread per core
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS",
+                    "LP_NUM_THREADS")
 
 
 def limit_threads(threads: int) -> None:

@@ -122,6 +122,8 @@ _WRITERS: list[Writer] = [
            "OUT.glb|OUTDIR", "splatreel.export.gltf"),
     Writer("splatv", "the whole native 4D model as one .splatv for the splaTV / gsplat.js web players (DC colour)",
            "OUT.splatv", "splatreel.export.splatv", sampled=False),
+    Writer("web", "a static WebGL2 player of the whole model (index.html + player.js + splats.bin, or one .html)",
+           "OUTDIR|OUT.html", "splatreel.export.web", sampled=False),
 ]
 
 

@@ -73,7 +73,7 @@ def test_one_option_one_spelling():
         assert "--frames" not in flags, words  # frame counts are --frame-count, the bake count --bake-frames
         assert not any(a.metavar in ("OUT", "OUT.usd", "OUTDIR") for a in parser._actions if not a.option_strings)
     assert set(ups) == {"view", "render", "export usd", "export mesh", "export ply", "export gltf", "export splatv",
-                        "convert"}
+                        "export web", "convert"}
     assert all(set(choices) <= set(UP_AXES) for choices in ups.values())
     assert set(outs) >= {"convert", "sample", "train", "eval", "render", "export"}
 

@@ -306,3 +306,57 @@ def test_cli_export_web(tmp_path, capsys):
         write_web(model, tmp_path / "notes", single_file=True)
     assert main(["export", "web", str(ckpt), "--out", str(tmp_path / "x"), "--frame-count", "3"]) == 1
     assert "--frame-count" in capsys.readouterr().err
+
+
+def _frame_after(browser, action, timeout: float = 20.0) -> np.ndarray:
+    """Run `action`, then wait for a new frame drawn with the order of its own view and time; read the canvas."""
+    frames = int(browser.eval("Number(document.documentElement.dataset.frames)"))
+    action()
+    end = time.monotonic() + timeout
+    while not browser.eval(f"document.documentElement.dataset.frames > {frames} && "
+                           "document.documentElement.dataset.sorted === '1'"):
+        assert time.monotonic() < end, "no new frame"
+        time.sleep(0.05)
+    data = browser.eval("document.getElementById('view').toDataURL('image/png')")
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(data.split(",", 1)[1]))).convert("RGB"), np.float64) / 255
+
+
+def test_controls_orbit_reset_link_and_play(served, browser):
+    root, base = served
+    model = swapping_pair()
+    write_web(model, root / "controls", background=BACKGROUND, up_axis="Z")
+    page = f"{base}/controls/index.html?eye=-4,-1,0.5&target=0,0,0&fov=35&t=0.2&paused=1"
+    before = len(browser.events)
+    start = browser.render(page, 320, 240)  # room for the control bar at the bottom
+    assert browser.eval("getComputedStyle(document.getElementById('bar')).display") != "none"
+
+    def drag(dx: float, dy: float, button: str = "left"):
+        def act():
+            x, y = 160, 60
+            buttons = 1 if button == "left" else 2
+            browser.call("Input.dispatchMouseEvent", type="mousePressed", x=x, y=y, button=button, buttons=buttons,
+                         clickCount=1)
+            browser.call("Input.dispatchMouseEvent", type="mouseMoved", x=x + dx, y=y + dy, button=button,
+                         buttons=buttons)
+            browser.call("Input.dispatchMouseEvent", type="mouseReleased", x=x + dx, y=y + dy, button=button,
+                         buttons=0, clickCount=1)
+        return act
+
+    orbited = _frame_after(browser, drag(60, 10))
+    assert np.abs(orbited - start).max() > 0.2  # the view moved
+    zoomed = _frame_after(browser, lambda: browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=160,
+                                                        y=60, deltaX=0, deltaY=-300))
+    assert np.abs(zoomed - orbited).max() > 0.2
+    reset = _frame_after(browser, lambda: browser.eval("document.getElementById('reset').click()"))
+    np.testing.assert_array_equal(reset, start)
+    # the Link button writes the view and time into the URL; loading it gives the same image
+    moved = _frame_after(browser, drag(-40, 20))
+    browser.eval("document.getElementById('link').click()")
+    assert "cam=" in browser.eval("location.search")
+    linked = browser.render(browser.eval("location.href"), 320, 240)
+    assert psnr(linked, moved) > 45
+    # playing advances the time slider
+    browser.eval("document.getElementById('play').click()")
+    time.sleep(0.5)
+    assert float(browser.eval("document.getElementById('time').value")) > 0.2
+    assert browser.errors(before) == []

@@ -31,7 +31,13 @@
       for (let i = 0; i < text.length; i++) bytes[i] = text.charCodeAt(i);
       return bytes.buffer;
     }
-    const response = await fetch("splats.bin");
+    let response;
+    try {
+      response = await fetch("splats.bin");
+    } catch (e) {
+      throw new Error("cannot read splats.bin (" + e.message + "): browsers do not let a page opened from a file " +
+                      "read its neighbours; serve the folder (python -m http.server) or export with --single-file");
+    }
     if (!response.ok) throw new Error("splats.bin: HTTP " + response.status);
     return response.arrayBuffer();
   }
@@ -547,6 +553,16 @@ void main() {
     speed.onchange = () => { state.speed = Number(speed.value); };
     loop.onchange = () => { state.loop = loop.checked; };
     $("reset").onclick = () => reset();
+    $("link").onclick = () => {  // this view and time as URL parameters (the pose exactly, c2w row-major)
+      const P = pose(), q = new URLSearchParams(location.search);
+      const c2w = [0, 1, 2].flatMap((r) => [P.right[r], P.down[r], P.fwd[r], P.eye[r]]).concat([0, 0, 0, 1]);
+      for (const k of ["eye", "target"]) q.delete(k);
+      q.set("t", String(state.t));
+      q.set("cam", c2w.map((v) => +v.toPrecision(9)).join(","));
+      q.set("fov", String(state.fov));
+      q.set("paused", "1");
+      history.replaceState(null, "", "?" + q.toString().replace(/%2C/g, ","));
+    };
     window.addEventListener("keydown", (e) => {
       if (e.key === " ") { play.onclick(); e.preventDefault(); } else if (e.key === "r") reset();
     });
@@ -632,9 +648,13 @@ void main() {
         frames++;
         slider.value = state.t;
         $("tlabel").textContent = "t = " + state.t.toFixed(3);
+        // for scripts and tests: frames drawn, whether the last one used the order at its view and time
+        const root = document.documentElement.dataset;
+        root.frames = String(Number(root.frames || 0) + 1);
+        root.sorted = key === sortedKey ? "1" : "0";
         if (!ready && key === sortedKey) {
           ready = true;
-          document.documentElement.dataset.ready = "1";
+          root.ready = "1";
           console.log(`splatreel-web: ready (${H.count} Gaussians, ${drawCount} drawn, t = ${state.t})`);
         }
       }

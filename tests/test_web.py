@@ -347,6 +347,14 @@ def test_controls_orbit_reset_link_and_play(served, browser):
     zoomed = _frame_after(browser, lambda: browser.call("Input.dispatchMouseEvent", type="mouseWheel", x=160,
                                                         y=60, deltaX=0, deltaY=-300))
     assert np.abs(zoomed - orbited).max() > 0.2
+    def pinch():  # two fingers spreading apart: zoom in
+        points = lambda d: [{"x": 160 - d, "y": 60, "id": 0}, {"x": 160 + d, "y": 60, "id": 1}]  # noqa: E731
+        browser.call("Input.dispatchTouchEvent", type="touchStart", touchPoints=points(30))
+        browser.call("Input.dispatchTouchEvent", type="touchMove", touchPoints=points(60))
+        browser.call("Input.dispatchTouchEvent", type="touchEnd", touchPoints=[])
+
+    pinched = _frame_after(browser, pinch)
+    assert np.abs(pinched - zoomed).max() > 0.2
     reset = _frame_after(browser, lambda: browser.eval("document.getElementById('reset').click()"))
     np.testing.assert_array_equal(reset, start)
     # the Link button writes the view and time into the URL; loading it gives the same image

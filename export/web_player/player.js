@@ -298,6 +298,8 @@ void main() {
     for (const p of [gl.TEXTURE_WRAP_S, gl.TEXTURE_WRAP_T]) gl.texParameteri(gl.TEXTURE_2D, p, gl.CLAMP_TO_EDGE);
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
     const [w, h] = a.size;
+    const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    if (w > max || h > max) throw new Error(`the model needs a ${w}x${h} texture; this browser allows ${max}x${max}`);
     const fmt = { f32: [gl.RGBA32F, gl.FLOAT], f16: [gl.RGBA16F, gl.HALF_FLOAT], u8: [gl.RGBA8, gl.UNSIGNED_BYTE] };
     const [internal, type] = fmt[a.type];
     gl.texImage2D(gl.TEXTURE_2D, 0, internal, w, h, 0, gl.RGBA, type, data);
@@ -391,7 +393,8 @@ void main() {
     const C = H.constants;
     const defines = { SH_DEGREE: H.sh_degree, SH_DEGREE_T: H.sh_degree_t, SH_TEXELS: H.sh_texels,
                       GEOM_W: H.arrays.geom.size[0], SH_W: H.arrays.sh.size[0] };
-    for (const [k, v] of Object.entries(C)) defines[k] = Number.isInteger(v) && k === "TILE_SIZE" ? v : v.toPrecision(17).replace(/^(-?\d+)$/, "$1.0");
+    // GLSL float literals (toPrecision always writes a decimal point here); TILE_SIZE stays an int
+    for (const [k, v] of Object.entries(C)) defines[k] = k === "TILE_SIZE" ? Math.round(v) : v.toPrecision(17);
     if (keyed) defines.KEYFRAMED = 1;
     if (H.arrays.sh.type === "u8") defines.SH_U8 = 1;
     const prog = compile(gl, defines);
@@ -474,7 +477,8 @@ void main() {
     function pose() {
       if (state.pose) return state.pose;
       const c = Math.cos(state.el);
-      const dir = add(add(mul(e1, c * Math.cos(state.az)), mul(e2, c * Math.sin(state.az))), mul(up, Math.sin(state.el)));
+      const dir = add(add(mul(e1, c * Math.cos(state.az)), mul(e2, c * Math.sin(state.az))),
+                      mul(up, Math.sin(state.el)));
       return lookAt(add(state.target, mul(dir, state.dist)), state.target, up);
     }
 
@@ -508,7 +512,8 @@ void main() {
 
     function resize() {
       const dpr = window.devicePixelRatio || 1;
-      const w = Math.max(1, Math.round(canvas.clientWidth * dpr)), h = Math.max(1, Math.round(canvas.clientHeight * dpr));
+      const w = Math.max(1, Math.round(canvas.clientWidth * dpr));
+      const h = Math.max(1, Math.round(canvas.clientHeight * dpr));
       if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; dirty = true; }
     }
 
@@ -548,7 +553,11 @@ void main() {
     slider.min = t0; slider.max = t1;
     if (params.get("ui") !== "0") bar.classList.remove("hidden");
     const setPlaying = (on) => { state.playing = on; play.textContent = on ? "Pause" : "Play"; };
-    play.onclick = () => { if (!state.playing && state.t >= t1) state.t = t0; setPlaying(!state.playing); dirty = true; };
+    play.onclick = () => {
+      if (!state.playing && state.t >= t1) state.t = t0;  // play again from the start
+      setPlaying(!state.playing);
+      dirty = true;
+    };
     slider.oninput = () => { state.t = Number(slider.value); dirty = true; };
     speed.onchange = () => { state.speed = Number(speed.value); };
     loop.onchange = () => { state.loop = loop.checked; };

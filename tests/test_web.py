@@ -166,8 +166,15 @@ def served(tmp_path_factory):
 
 
 class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    #: every path requested, in order (the single-file page must ask for itself only)
+    requested: list[str] = []
+
     def log_message(self, *args) -> None:
         pass
+
+    def do_GET(self) -> None:
+        _QuietHandler.requested.append(self.path.split("?", 1)[0])
+        super().do_GET()
 
 
 @pytest.fixture(scope="module")
@@ -278,11 +285,14 @@ def test_single_file_gives_the_same_image(served, browser):
     write_web(model, root / "folder", background=BACKGROUND)
     (path,) = write_web(model, root / "one.html", background=BACKGROUND, single_file=True)
     assert path.is_file() and not (root / DATA_NAME).exists()
-    html = path.read_text()
-    assert "splat-data" in html and "http" not in html.split("<script", 1)[1].split("splat-data")[0]
+    assert 'id="splat-data"' in path.read_text()
     cam = look_at((-3.0, -2.0, 1.0), (0.0, 0.0, 0.0), "z", fov_deg=35, width=W, height=H)
+    del _QuietHandler.requested[:]
     folder, _ = check_page(browser, url(f"{base}/folder/index.html", cam, 0.7), model, cam, 0.7)
+    assert _QuietHandler.requested == ["/folder/index.html", "/folder/player.js", f"/folder/{DATA_NAME}"]
+    del _QuietHandler.requested[:]
     single, db = check_page(browser, url(f"{base}/one.html", cam, 0.7), model, cam, 0.7)
+    assert _QuietHandler.requested == ["/one.html"]  # nothing else, from anywhere: the page holds it all
     assert db >= MIN_PSNR
     np.testing.assert_array_equal(single, folder)
 

@@ -668,7 +668,8 @@ void main() {
         }
       }
       if (now - fpsStart >= 1000) {
-        $("fps").textContent = (1000 * frames / (now - fpsStart)).toFixed(1) + " FPS";
+        // frames drawn per second (none while nothing changes)
+        $("fps").textContent = frames ? (1000 * frames / (now - fpsStart)).toFixed(1) + " FPS" : "idle";
         frames = 0;
         fpsStart = now;
       }

@@ -114,9 +114,9 @@ def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
     return geom, sh, fields
 
 
-def _texture(values: np.ndarray, texels: int, dtype) -> tuple[np.ndarray, list[int]]:
-    """``[rows, texels * 4]`` values -> a ``[height, TEXTURE_WIDTH, 4]`` texture image (rows of texels laid out in
-    order, zero-padded), and its [width, height]."""
+def _texture(values: np.ndarray, dtype) -> tuple[np.ndarray, list[int]]:
+    """``[rows, 4 k]`` values (k RGBA texels per row) -> the texels in order, ``[height * width, 4]`` zero-padded
+    (width = TEXTURE_WIDTH, or fewer for a small model), and [width, height]."""
     flat = values.reshape(-1, 4).astype(dtype)
     total = flat.shape[0]
     width = min(TEXTURE_WIDTH, max(total, 1))
@@ -159,15 +159,15 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
     if quantize:
         g = geom.copy()
         g[..., 1, 3] = np.minimum(g[..., 1, 3], HALF_MAX)
-        image, size = _texture(g.reshape(len(g), -1), 4, np.float16)
+        image, size = _texture(g.reshape(len(g), -1), np.float16)
         arrays["geom"] = (image, {"type": "f16", "size": size})
         q, lo, step = _quantize_u8(sh)
-        image, size = _texture(q, sh.shape[1] // 4, np.uint8)
+        image, size = _texture(q, np.uint8)
         arrays["sh"] = (image, {"type": "u8", "size": size, "lo": lo.tolist(), "step": step.tolist()})
     else:
-        image, size = _texture(geom.reshape(len(geom), -1), 4, np.float32)
+        image, size = _texture(geom.reshape(len(geom), -1), np.float32)
         arrays["geom"] = (image, {"type": "f32", "size": size})
-        image, size = _texture(sh, sh.shape[1] // 4, np.float32)
+        image, size = _texture(sh, np.float32)
         arrays["sh"] = (image, {"type": "f32", "size": size})
     header = {"format": "splatreel-web", "version": 1, "title": title, **fields,
               "time_range": [float(x) for x in model.time_range], "sh_texels": sh.shape[1] // 4,

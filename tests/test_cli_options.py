@@ -72,8 +72,8 @@ def test_one_option_one_spelling():
             assert "-o" in flags and flags["-o"] is flags["--out"], words
         assert "--frames" not in flags, words  # frame counts are --frame-count, the bake count --bake-frames
         assert not any(a.metavar in ("OUT", "OUT.usd", "OUTDIR") for a in parser._actions if not a.option_strings)
-    assert set(ups) == {"view", "render", "export usd", "export mesh", "export ply", "export gltf", "export splatv", "export 4dgs",
-                        "convert"}
+    assert set(ups) == {"view", "render", "export usd", "export mesh", "export ply", "export gltf", "export splatv",
+                        "export 4dgs", "export web", "convert"}
     assert all(set(choices) <= set(UP_AXES) for choices in ups.values())
     assert set(outs) >= {"convert", "sample", "train", "eval", "render", "export"}
 

@@ -506,7 +506,7 @@ def test_a_frame_below_the_iso_level_gives_an_empty_mesh_in_every_format(ball, t
 # --- registry and CLI ----------------------------------------------------------------------------------------
 
 def test_cli_formats_come_from_the_registry_and_errors_are_one_line(ball, tmp_path, capsys):
-    assert list(exporters()) == ["usd", "mesh", "ply", "gltf", "splatv", "4dgs"]
+    assert list(exporters()) == ["usd", "mesh", "ply", "gltf", "splatv", "4dgs", "web"]
     ckpt = save_checkpoint(tmp_path / "ball.safetensors", ball)
     out = tmp_path / "a.usda"
     assert main(["export", "usd", str(ckpt), "--out", str(out), "--frame-count", "3", "--fps", "30", "--what", "splats",

@@ -72,6 +72,7 @@ def test_the_format_registry_imports_its_formats_only_when_used():
                                            "splatv", "4dgs", "splatreel"]
     for r in readers():
         assert callable(resolve(r.sniff)) and callable(resolve(r.read)), r.name
-    assert list(exporters()) == [w.name for w in writers()] == ["usd", "mesh", "ply", "gltf", "splatv", "4dgs"]
+    assert list(exporters()) == [w.name for w in writers()] == ["usd", "mesh", "ply", "gltf", "splatv", "4dgs",
+                                                                "web"]
     for w in writers():
         assert callable(resolve(f"{w.module}:add_args")) and callable(resolve(f"{w.module}:run")), w.name

@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     frames = args.frame_count if args.frame_count is not None else getattr(model, "num_frames", DEFAULT_FRAMES)
     times = frame_times(model.time_range, frames, args.start, args.end)
     args.provenance = dict(ckpt.provenance or {})
+    args.background = ckpt.background
     args.progress = not args.quiet
     paths = writer.run(model, times, Path(args.out), args)
     size = sum(p.stat().st_size for p in paths if p.is_file())

@@ -1,0 +1,682 @@
+// splatreel web player: a native 4D (or keyframed) Gaussian splatting model in WebGL2, no build step, no network.
+//
+// The model is evaluated at time t in the vertex shader with the desktop renderer's formulas
+// (splatreel shaders/splat_preprocess.glsl and splat_draw.glsl):
+//   * native 4D Gaussians (Yang et al., ICLR 2024): mean mu_x + v (t - mu_t), constant conditional covariance
+//     (stored as scales + rotation), opacity sigmoid(o) exp(-(t - mu_t)^2 / (2 Sigma_tt)), culled at or below
+//     TEMPORAL_CULL; colour = SH with cosine time terms cos(2 pi n (mu_t - t) / T), + 0.5, clamped at 0;
+//   * keyframed models: lerp of means, scales, opacities and SH, slerp of rotations between the keys around t;
+//   * EWA splatting (Zwicker et al. 2001) as in Kerbl et al., "3D Gaussian Splatting" (2023): Jacobian at the
+//     clamped x/z, y/z, + EPS2D px^2, cut where alpha < ALPHA_THRESHOLD, alpha clamped at MAX_ALPHA.
+// A Web Worker sorts the Gaussians back to front by their depth at t (a 16-bit counting sort over the depth range)
+// whenever the view or t changed; the splats are drawn as instanced quads, premultiplied, blended with "over"
+// (Porter and Duff 1984).
+//
+// URL parameters: t=<model time>, cam=<c2w 4x4 or 3x4, row-major, OpenCV axes (x right, y down, z forward)>,
+// eye=x,y,z & target=x,y,z (instead of cam), fov=<vertical degrees>, up=x|y|z, paused=1, ui=0, speed=<units/s>,
+// loop=0.
+"use strict";
+
+(function () {
+  const msg = document.getElementById("msg");
+  const fail = (text) => { msg.textContent = text; console.error("splatreel-web: " + text); };
+  window.addEventListener("error", (e) => fail(String(e.message || e)));
+
+  // ---------------------------------------------------------------------------------------------- data file --
+  async function loadBytes() {
+    const inline = document.getElementById("splat-data");
+    if (inline) {
+      const text = atob(inline.textContent.trim());
+      const bytes = new Uint8Array(text.length);
+      for (let i = 0; i < text.length; i++) bytes[i] = text.charCodeAt(i);
+      return bytes.buffer;
+    }
+    let response;
+    try {
+      response = await fetch("splats.bin");
+    } catch (e) {
+      throw new Error("cannot read splats.bin (" + e.message + "): browsers do not let a page opened from a file " +
+                      "read its neighbours; serve the folder (python -m http.server) or export with --single-file");
+    }
+    if (!response.ok) throw new Error("splats.bin: HTTP " + response.status);
+    return response.arrayBuffer();
+  }
+
+  function parse(buffer) {
+    const magic = new TextDecoder().decode(new Uint8Array(buffer, 0, 4));
+    if (magic !== "SRWB") throw new Error("not a splatreel web data file");
+    const length = new DataView(buffer).getUint32(4, true);
+    const header = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 8, length)));
+    const base = 8 + length;
+    const arrays = {};
+    for (const [name, a] of Object.entries(header.arrays)) {
+      const type = { f32: Float32Array, f16: Uint16Array, u8: Uint8Array }[a.type];
+      arrays[name] = new type(buffer, base + a.offset, a.bytes / type.BYTES_PER_ELEMENT);
+    }
+    return { header, arrays };
+  }
+
+  function halfToFloat(h) {
+    const s = h & 0x8000 ? -1 : 1, e = (h >> 10) & 0x1f, f = h & 0x3ff;
+    if (e === 0) return s * f * Math.pow(2, -24);
+    if (e === 31) return f ? NaN : s * Infinity;
+    return s * (1 + f / 1024) * Math.pow(2, e - 15);
+  }
+
+  // ---------------------------------------------------------------------------------------------- shaders ----
+  const VERTEX = `
+layout(location = 0) in uint a_index;
+uniform highp sampler2D u_geom;
+uniform highp sampler2D u_sh;
+uniform mat3 u_rot;        // world -> camera rotation (OpenCV axes)
+uniform vec3 u_trans;      // world -> camera translation
+uniform vec3 u_campos;     // camera centre
+uniform vec4 u_intr;       // fx fy cx cy (pixels)
+uniform vec2 u_size;       // image width, height (pixels)
+uniform float u_time;
+uniform float u_duration;  // T, the period scale of the colour's time terms
+uniform int u_count;       // Gaussians per key
+uniform int u_key0, u_key1;
+uniform float u_w;         // keyframed: weight of key 1
+#ifdef SH_U8
+uniform vec4 u_sh_lo[SH_TEXELS];
+uniform vec4 u_sh_step[SH_TEXELS];
+#endif
+out vec2 v_uv;
+flat out vec4 v_color;
+flat out vec4 v_rect;
+flat out float v_radius2;
+
+const float SH_C0 = 0.28209479177387814;
+const float SH_C1 = 0.4886025119029199;
+const float TWO_PI = 6.283185307179586;
+#define SH_BASES ((SH_DEGREE + 1) * (SH_DEGREE + 1))
+
+vec4 geom(int row, int k) {
+  int i = row * 4 + k;
+  return texelFetch(u_geom, ivec2(i % GEOM_W, i / GEOM_W), 0);
+}
+
+vec4 sh_texel(int row, int k) {
+  int i = row * SH_TEXELS + k;
+  vec4 v = texelFetch(u_sh, ivec2(i % SH_W, i / SH_W), 0);
+#ifdef SH_U8
+  v = u_sh_lo[k] + u_sh_step[k] * floor(v * 255.0 + 0.5);
+#endif
+  return v;
+}
+
+mat3 rotmat(vec4 q) {  // (w, x, y, z), normalised here
+  q = q / max(length(q), 1e-12);
+  float w = q.x, x = q.y, y = q.z, z = q.w;
+  return mat3(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y),   // column 0
+              2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x),   // column 1
+              2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y));  // column 2
+}
+
+#ifdef KEYFRAMED
+vec4 slerp(vec4 a, vec4 b, float w) {  // along the shorter arc, nlerp when nearly equal
+  a = a / max(length(a), 1e-12);
+  b = b / max(length(b), 1e-12);
+  float d = dot(a, b);
+  if (d < 0.0) { b = -b; d = -d; }
+  float theta = acos(min(d, 1.0));
+  float s = sin(theta);
+  vec4 q = s < 1e-6 ? (1.0 - w) * a + w * b : (sin((1.0 - w) * theta) * a + sin(w * theta) * b) / s;
+  return q / max(length(q), 1e-12);
+}
+#endif
+
+vec3 sh_color(int row0, int row1, float w, vec3 dir, float tau) {
+  float c[SH_TEXELS * 4];
+  for (int k = 0; k < SH_TEXELS; ++k) {
+    vec4 v = sh_texel(row0, k);
+#ifdef KEYFRAMED
+    v = mix(v, sh_texel(row1, k), w);
+#endif
+    c[4 * k] = v.x; c[4 * k + 1] = v.y; c[4 * k + 2] = v.z; c[4 * k + 3] = v.w;
+  }
+  vec3 coef[SH_BASES];
+  for (int j = 0; j < SH_BASES; ++j) coef[j] = vec3(c[3 * j], c[3 * j + 1], c[3 * j + 2]);
+#if SH_DEGREE_T > 0
+  for (int n = 1; n <= SH_DEGREE_T; ++n) {
+    float cw = cos(TWO_PI * float(n) * tau / u_duration);
+    for (int j = 0; j < SH_BASES; ++j) {
+      int k = 3 * (n * SH_BASES + j);
+      coef[j] += cw * vec3(c[k], c[k + 1], c[k + 2]);
+    }
+  }
+#endif
+  vec3 result = SH_C0 * coef[0];
+#if SH_DEGREE >= 1
+  vec3 d = normalize(dir);
+  float x = d.x, y = d.y, z = d.z;
+  result += -SH_C1 * y * coef[1] + SH_C1 * z * coef[2] - SH_C1 * x * coef[3];
+#if SH_DEGREE >= 2
+  float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+  result += 1.0925484305920792 * xy * coef[4] - 1.0925484305920792 * yz * coef[5]
+          + 0.31539156525252005 * (2.0 * zz - xx - yy) * coef[6] - 1.0925484305920792 * xz * coef[7]
+          + 0.5462742152960396 * (xx - yy) * coef[8];
+#if SH_DEGREE >= 3
+  result += -0.5900435899266435 * y * (3.0 * xx - yy) * coef[9] + 2.890611442640554 * xy * z * coef[10]
+          - 0.4570457994644658 * y * (4.0 * zz - xx - yy) * coef[11]
+          + 0.3731763325901154 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * coef[12]
+          - 0.4570457994644658 * x * (4.0 * zz - xx - yy) * coef[13] + 1.445305721320277 * z * (xx - yy) * coef[14]
+          - 0.5900435899266435 * x * (xx - 3.0 * yy) * coef[15];
+#endif
+#endif
+#endif
+  return max(result + 0.5, vec3(0.0));
+}
+
+void cull() {
+  gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume
+  v_uv = vec2(0.0);
+  v_color = vec4(0.0);
+  v_rect = vec4(0.0);
+  v_radius2 = 0.0;
+}
+
+void main() {
+  int i = int(a_index);
+#ifdef KEYFRAMED
+  int row0 = u_key0 * u_count + i, row1 = u_key1 * u_count + i;
+  vec4 g0 = geom(row0, 0), g1 = geom(row1, 0);
+  vec3 mean = mix(g0.xyz, g1.xyz, u_w);
+  float opacity = mix(g0.w, g1.w, u_w);
+  if (!(opacity > 0.0)) { cull(); return; }
+  vec4 quat = u_w == 0.0 ? geom(row0, 2) : slerp(geom(row0, 2), geom(row1, 2), u_w);
+  vec3 scale = mix(geom(row0, 3).xyz, geom(row1, 3).xyz, u_w);
+  float tau = 0.0;
+#else
+  int row0 = i, row1 = i;
+  vec4 m = geom(i, 0), motion = geom(i, 1), shape = geom(i, 3);
+  float dt = u_time - m.w;
+  float marginal = exp(-dt * dt * motion.w);
+  if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
+  float opacity = shape.w * marginal;
+  vec3 mean = m.xyz + motion.xyz * dt;
+  vec4 quat = geom(i, 2);
+  vec3 scale = shape.xyz;
+  float tau = -dt;
+#endif
+  if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
+
+  // EWA projection (the desktop pre-pass)
+  vec3 p = u_rot * mean + u_trans;
+  if (!(p.z > NEAR_PLANE)) { cull(); return; }
+  float fx = u_intr.x, fy = u_intr.y, cx = u_intr.z, cy = u_intr.w;
+  float slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.x / fx;
+  float slack_y = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.y / fy;
+  float tx = p.z * clamp(p.x / p.z, -(cx / fx + slack_x), (u_size.x - cx) / fx + slack_x);
+  float ty = p.z * clamp(p.y / p.z, -(cy / fy + slack_y), (u_size.y - cy) / fy + slack_y);
+  float iz = 1.0 / p.z;
+  vec3 j0 = vec3(fx * iz, 0.0, -fx * tx * iz * iz);
+  vec3 j1 = vec3(0.0, fy * iz, -fy * ty * iz * iz);
+  vec3 t0 = j0 * u_rot;  // rows of J R
+  vec3 t1 = j1 * u_rot;
+  mat3 ms = rotmat(quat) * mat3(scale.x, 0.0, 0.0, 0.0, scale.y, 0.0, 0.0, 0.0, scale.z);
+  mat3 cov = ms * transpose(ms);
+  vec3 ct0 = cov * t0;
+  float a = dot(t0, ct0) + EPS2D;
+  float b = dot(t1, ct0);
+  float c = dot(t1, cov * t1) + EPS2D;
+  float det = a * c - b * b;
+  if (!(det > 0.0)) { cull(); return; }
+  float mid = 0.5 * (a + c);
+  float disc = sqrt(max(mid * mid - det, 0.0));
+  float l1 = mid + disc;
+  float l2 = det / l1;
+  vec2 e1 = vec2(b, l1 - a);
+  float len1 = length(e1);
+  e1 = len1 > 1e-12 * l1 ? e1 / len1 : (a >= c ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
+  vec2 e2 = vec2(-e1.y, e1.x);
+  vec2 axis1 = e1 * sqrt(l1);
+  vec2 axis2 = e2 * sqrt(l2);
+  // alpha = o exp(-r^2 / 2) >= ALPHA_THRESHOLD exactly inside r^2 = 2 ln(o / ALPHA_THRESHOLD)
+  float radius = sqrt(2.0 * log(opacity / ALPHA_THRESHOLD));
+  vec2 centre = vec2(fx * p.x * iz + cx, fy * p.y * iz + cy);
+  // the reference rasterizer's square box (whole pixels) and the tiles it touches
+  float box = ceil(RADIUS_SIGMAS * sqrt(mid + sqrt(max(EIGEN_FLOOR, mid * mid - det))));
+  vec2 half_box = min(vec2(box), radius * sqrt(vec2(a, c)) + 1.0);
+  vec2 lo = centre - half_box, hi = centre + half_box;
+  if (any(lessThanEqual(centre + box, vec2(0.0))) || any(greaterThanEqual(centre - box, u_size))
+      || any(lessThan(hi, vec2(0.0))) || any(greaterThan(lo, u_size))) { cull(); return; }
+
+  vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
+  vec2 uv = corner * max(radius, 1e-6);
+  vec2 px = centre + axis1 * uv.x + axis2 * uv.y;
+  gl_Position = vec4(2.0 * px.x / u_size.x - 1.0, 1.0 - 2.0 * px.y / u_size.y, 0.0, 1.0);
+  v_uv = uv;
+  v_color = vec4(sh_color(row0, row1, u_w, mean - u_campos, tau), opacity);
+  v_radius2 = radius * radius;
+  v_rect = vec4(floor(lo / float(TILE_SIZE)), ceil(hi / float(TILE_SIZE))) * float(TILE_SIZE);
+}
+`;
+
+  const FRAGMENT = `
+precision highp float;
+uniform float u_height;
+in vec2 v_uv;
+flat in vec4 v_color;
+flat in vec4 v_rect;
+flat in float v_radius2;
+out vec4 f_color;
+void main() {
+  vec2 pixel = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);  // pixel centre, y down
+  float r2 = dot(v_uv, v_uv);
+  bool inside = all(greaterThanEqual(pixel, v_rect.xy)) && all(lessThan(pixel, v_rect.zw));
+  if (r2 > v_radius2 || !inside) discard;
+  float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
+  f_color = vec4(v_color.rgb * alpha, alpha);
+}
+`;
+
+  function compile(gl, defines) {
+    const head = "#version 300 es\nprecision highp float;\nprecision highp int;\n" +
+      Object.entries(defines).map(([k, v]) => `#define ${k} ${v}\n`).join("");
+    const shader = (type, src) => {
+      const s = gl.createShader(type);
+      gl.shaderSource(s, head + src);
+      gl.compileShader(s);
+      if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error("shader: " + gl.getShaderInfoLog(s));
+      return s;
+    };
+    const prog = gl.createProgram();
+    gl.attachShader(prog, shader(gl.VERTEX_SHADER, VERTEX));
+    gl.attachShader(prog, shader(gl.FRAGMENT_SHADER, FRAGMENT));
+    gl.linkProgram(prog);
+    if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error("link: " + gl.getProgramInfoLog(prog));
+    return prog;
+  }
+
+  function texture(gl, unit, a, data) {
+    const tex = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE0 + unit);
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    for (const p of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, p, gl.NEAREST);
+    for (const p of [gl.TEXTURE_WRAP_S, gl.TEXTURE_WRAP_T]) gl.texParameteri(gl.TEXTURE_2D, p, gl.CLAMP_TO_EDGE);
+    gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+    const [w, h] = a.size;
+    const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    if (w > max || h > max) throw new Error(`the model needs a ${w}x${h} texture; this browser allows ${max}x${max}`);
+    const fmt = { f32: [gl.RGBA32F, gl.FLOAT], f16: [gl.RGBA16F, gl.HALF_FLOAT], u8: [gl.RGBA8, gl.UNSIGNED_BYTE] };
+    const [internal, type] = fmt[a.type];
+    gl.texImage2D(gl.TEXTURE_2D, 0, internal, w, h, 0, gl.RGBA, type, data);
+    return tex;
+  }
+
+  // ------------------------------------------------------------------------------------------- sort worker ----
+  // Runs in the worker (built from this function's source): depth at t of every Gaussian that can show, then a
+  // 16-bit counting sort, far to near (ties in index order).
+  function sortWorker() {
+    let model = null;
+    let counts = new Uint32Array(65536);
+    self.onmessage = (e) => {
+      const m = e.data;
+      if (m.model) { model = m.model; return; }
+      const { rot, tz, t, key0, key1, w } = m;
+      const n = model.count, c = model.constants;
+      const depth = new Float32Array(n);
+      const live = new Uint32Array(n);
+      let count = 0, lo = Infinity, hi = -Infinity;
+      for (let i = 0; i < n; i++) {
+        let x, y, z;
+        if (model.kind === "keyframed") {
+          const a = 3 * (key0 * n + i), b = 3 * (key1 * n + i);
+          const op = (1 - w) * model.opacity[key0 * n + i] + w * model.opacity[key1 * n + i];
+          if (!(op > 0 && op >= c.ALPHA_THRESHOLD)) continue;
+          x = (1 - w) * model.pos[a] + w * model.pos[b];
+          y = (1 - w) * model.pos[a + 1] + w * model.pos[b + 1];
+          z = (1 - w) * model.pos[a + 2] + w * model.pos[b + 2];
+        } else {
+          const q = 9 * i, p = model.pos, dt = t - p[q + 3];
+          const marginal = Math.exp(-dt * dt * p[q + 7]);
+          if (!(marginal > c.TEMPORAL_CULL) || !(p[q + 8] * marginal >= c.ALPHA_THRESHOLD)) continue;
+          x = p[q] + p[q + 4] * dt; y = p[q + 1] + p[q + 5] * dt; z = p[q + 2] + p[q + 6] * dt;
+        }
+        const d = rot[0] * x + rot[1] * y + rot[2] * z + tz;
+        if (!(d > c.NEAR_PLANE)) continue;
+        depth[count] = d;
+        live[count++] = i;
+        if (d < lo) lo = d;
+        if (d > hi) hi = d;
+      }
+      const scale = hi > lo ? 65535 / (hi - lo) : 0;
+      counts.fill(0);
+      const bucket = new Uint16Array(count);
+      for (let k = 0; k < count; k++) { bucket[k] = Math.floor((hi - depth[k]) * scale); counts[bucket[k]]++; }
+      for (let s = 0, b = 0; b < 65536; b++) { const v = counts[b]; counts[b] = s; s += v; }
+      const order = new Uint32Array(Math.max(count, 1));
+      for (let k = 0; k < count; k++) order[counts[bucket[k]]++] = live[k];
+      self.postMessage({ id: m.id, order, count }, [order.buffer]);
+    };
+  }
+
+  // ------------------------------------------------------------------------------------------------ camera ----
+  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+  const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+  const mul = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+  const dot3 = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const norm = (a) => mul(a, 1 / Math.hypot(a[0], a[1], a[2]));
+  const UP = { x: [1, 0, 0], y: [0, 1, 0], z: [0, 0, 1] };
+  // the orbit plane's axes (e1 x e2 = up)
+  const PLANE = { x: [[0, 1, 0], [0, 0, 1]], y: [[0, 0, 1], [1, 0, 0]], z: [[1, 0, 0], [0, 1, 0]] };
+
+  // camera-to-world (OpenCV axes) columns right, down, forward, eye: as splatreel.cameras.look_at_c2w
+  function lookAt(eye, target, up) {
+    const fwd = norm(sub(target, eye));
+    let right = cross(fwd, up);
+    if (Math.hypot(...right) < 1e-9) right = cross(fwd, [up[2], up[0], up[1]]);
+    right = norm(right);
+    const down = cross(fwd, right);
+    return { right, down, fwd, eye };
+  }
+
+  function numbers(text, n) {
+    if (text === null) return null;
+    const v = text.split(",").map(Number);
+    if (!n.includes(v.length) || !v.every(Number.isFinite)) throw new Error(`bad URL value ${text}`);
+    return v;
+  }
+
+  // ------------------------------------------------------------------------------------------------- main -----
+  async function main() {
+    const params = new URLSearchParams(location.search);
+    const { header: H, arrays } = parse(await loadBytes());
+    const canvas = document.getElementById("view");
+    const gl = canvas.getContext("webgl2", { alpha: false, antialias: false, depth: false,
+                                             preserveDrawingBuffer: true, premultipliedAlpha: false });
+    if (!gl) throw new Error("this browser has no WebGL2");
+    const keyed = H.kind === "keyframed";
+    const C = H.constants;
+    const defines = { SH_DEGREE: H.sh_degree, SH_DEGREE_T: H.sh_degree_t, SH_TEXELS: H.sh_texels,
+                      GEOM_W: H.arrays.geom.size[0], SH_W: H.arrays.sh.size[0] };
+    // GLSL float literals (toPrecision always writes a decimal point here); TILE_SIZE stays an int
+    for (const [k, v] of Object.entries(C)) defines[k] = k === "TILE_SIZE" ? Math.round(v) : v.toPrecision(17);
+    if (keyed) defines.KEYFRAMED = 1;
+    if (H.arrays.sh.type === "u8") defines.SH_U8 = 1;
+    const prog = compile(gl, defines);
+    gl.useProgram(prog);
+    const U = (name) => gl.getUniformLocation(prog, name);
+    texture(gl, 0, H.arrays.geom, arrays.geom);
+    texture(gl, 1, H.arrays.sh, arrays.sh);
+    gl.uniform1i(U("u_geom"), 0);
+    gl.uniform1i(U("u_sh"), 1);
+    gl.uniform1f(U("u_duration"), H.duration);
+    gl.uniform1i(U("u_count"), H.count);
+    if (H.arrays.sh.type === "u8") {
+      gl.uniform4fv(U("u_sh_lo"), new Float32Array(H.arrays.sh.lo));
+      gl.uniform4fv(U("u_sh_step"), new Float32Array(H.arrays.sh.step));
+    }
+
+    // what the sort worker needs, as float32: native [x y z mu_t vx vy vz 1/(2 Sigma_tt) opacity] per Gaussian;
+    // keyframed: every key's means and opacities
+    const g = arrays.geom;
+    const value = H.arrays.geom.type === "f16" ? (k) => halfToFloat(g[k]) : (k) => g[k];
+    const rows = H.count * H.keys;
+    let sortModel;
+    if (keyed) {
+      const pos = new Float32Array(3 * rows), opacity = new Float32Array(rows);
+      for (let r = 0; r < rows; r++) {
+        for (let k = 0; k < 3; k++) pos[3 * r + k] = value(16 * r + k);
+        opacity[r] = value(16 * r + 3);
+      }
+      sortModel = { kind: H.kind, count: H.count, constants: C, pos, opacity };
+    } else {
+      const pos = new Float32Array(9 * rows);
+      for (let r = 0; r < rows; r++) {
+        for (let k = 0; k < 8; k++) pos[9 * r + k] = value(16 * r + k);
+        pos[9 * r + 8] = value(16 * r + 15);
+      }
+      sortModel = { kind: H.kind, count: H.count, constants: C, pos };
+    }
+    const worker = new Worker(URL.createObjectURL(new Blob(["(" + sortWorker.toString() + ")()"],
+                                                            { type: "text/javascript" })));
+    worker.postMessage({ model: sortModel });
+
+    // instance attribute: the Gaussian index, in drawing order
+    const vao = gl.createVertexArray();
+    gl.bindVertexArray(vao);
+    const indexBuffer = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, indexBuffer);
+    gl.enableVertexAttribArray(0);
+    gl.vertexAttribIPointer(0, 1, gl.UNSIGNED_INT, 0, 0);
+    gl.vertexAttribDivisor(0, 1);
+    let drawCount = 0;
+
+    // ---- state: time, camera, playback
+    const [t0, t1] = H.time_range;
+    const upName = (params.get("up") || H.up || "y").toLowerCase();
+    if (!UP[upName]) throw new Error("up must be x, y or z");
+    const up = UP[upName], [e1, e2] = PLANE[upName];
+    const state = { t: t0, playing: true, speed: 1, loop: true, fov: H.view.fov, pose: null,
+                    target: H.view.target, dist: 1, az: 0, el: 0 };
+    function setOrbit(eye, target) {
+      const d = sub(eye, target);
+      state.target = target;
+      state.dist = Math.max(Math.hypot(...d), 1e-6);
+      state.el = Math.asin(Math.max(-1, Math.min(1, dot3(d, up) / state.dist)));
+      state.az = Math.atan2(dot3(d, e2), dot3(d, e1));
+    }
+    function reset() {
+      state.pose = null;
+      state.fov = Number(params.get("fov") || H.view.fov);
+      const eye = numbers(params.get("eye"), [3]), target = numbers(params.get("target"), [3]);
+      setOrbit(eye || H.view.eye, target || H.view.target);
+      const cam = numbers(params.get("cam"), [12, 16]);
+      if (cam) {  // exact pose until the user moves the view
+        const col = (j) => [cam[j], cam[4 + j], cam[8 + j]];
+        state.pose = { right: col(0), down: col(1), fwd: col(2), eye: col(3) };
+        const far = Math.hypot(...sub(H.view.target, col(3)));
+        setOrbit(col(3), add(col(3), mul(col(2), far)));
+      }
+      dirty = true;
+    }
+    function pose() {
+      if (state.pose) return state.pose;
+      const c = Math.cos(state.el);
+      const dir = add(add(mul(e1, c * Math.cos(state.az)), mul(e2, c * Math.sin(state.az))),
+                      mul(up, Math.sin(state.el)));
+      return lookAt(add(state.target, mul(dir, state.dist)), state.target, up);
+    }
+
+    let dirty = true, pending = null, sortedKey = null, requestId = 0, ready = false;
+    function viewKey(P) { return [P.right, P.down, P.fwd, P.eye].flat().join(",") + "|" + canvas.width; }
+    function keys(t) {  // keyframed: the keys around t and the weight of the second (KeyframedGaussians._bracket)
+      const kt = H.key_times, f = kt.length;
+      if (f <= 1 || t <= kt[0]) return [0, 0, 0];
+      if (t >= kt[f - 1]) return [f - 1, f - 1, 0];
+      let i = 0;
+      while (kt[i + 1] <= t) i++;
+      return [i, i + 1, (t - kt[i]) / (kt[i + 1] - kt[i])];
+    }
+    function requestSort(P, key) {
+      if (pending) return;
+      const [key0, key1, w] = keys(state.t);
+      const tz = -dot3(P.fwd, P.eye);
+      pending = { id: ++requestId, key };
+      worker.postMessage({ id: requestId, rot: P.fwd, tz, t: state.t, key0, key1, w });
+    }
+    worker.onmessage = (e) => {
+      const { order, count } = e.data;
+      gl.bindBuffer(gl.ARRAY_BUFFER, indexBuffer);
+      gl.bufferData(gl.ARRAY_BUFFER, order, gl.DYNAMIC_DRAW);
+      drawCount = count;
+      sortedKey = pending.key;
+      pending = null;
+      dirty = true;
+    };
+    worker.onerror = (e) => fail("sort worker: " + e.message);
+
+    function resize() {
+      const dpr = window.devicePixelRatio || 1;
+      const w = Math.max(1, Math.round(canvas.clientWidth * dpr));
+      const h = Math.max(1, Math.round(canvas.clientHeight * dpr));
+      if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; dirty = true; }
+    }
+
+    const bg = H.background;
+    function draw(P) {
+      const W = canvas.width, Hh = canvas.height;
+      const f = 0.5 * Hh / Math.tan(0.5 * state.fov * Math.PI / 180);
+      // w2c rotation = transpose of the c2w columns: its rows are right, down, fwd; column-major upload
+      const R = [P.right, P.down, P.fwd];
+      const rot = new Float32Array([R[0][0], R[1][0], R[2][0], R[0][1], R[1][1], R[2][1], R[0][2], R[1][2], R[2][2]]);
+      gl.viewport(0, 0, W, Hh);
+      gl.clearColor(bg[0], bg[1], bg[2], 1);
+      gl.clear(gl.COLOR_BUFFER_BIT);
+      gl.useProgram(prog);
+      gl.uniformMatrix3fv(U("u_rot"), false, rot);
+      gl.uniform3f(U("u_trans"), -dot3(P.right, P.eye), -dot3(P.down, P.eye), -dot3(P.fwd, P.eye));
+      gl.uniform3fv(U("u_campos"), P.eye);
+      gl.uniform4f(U("u_intr"), f, f, W / 2, Hh / 2);
+      gl.uniform2f(U("u_size"), W, Hh);
+      gl.uniform1f(U("u_height"), Hh);
+      gl.uniform1f(U("u_time"), state.t);
+      const [key0, key1, w] = keys(state.t);
+      gl.uniform1i(U("u_key0"), key0);
+      gl.uniform1i(U("u_key1"), key1);
+      gl.uniform1f(U("u_w"), w);
+      if (drawCount > 0) {
+        gl.enable(gl.BLEND);
+        gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);  // premultiplied, back to front
+        gl.bindVertexArray(vao);
+        gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, drawCount);
+      }
+    }
+
+    // ---- UI
+    const $ = (id) => document.getElementById(id);
+    const bar = $("bar"), slider = $("time"), play = $("play"), speed = $("speed"), loop = $("loop");
+    slider.min = t0; slider.max = t1;
+    if (params.get("ui") !== "0") bar.classList.remove("hidden");
+    const setPlaying = (on) => { state.playing = on; play.textContent = on ? "Pause" : "Play"; };
+    play.onclick = () => {
+      if (!state.playing && state.t >= t1) state.t = t0;  // play again from the start
+      setPlaying(!state.playing);
+      dirty = true;
+    };
+    slider.oninput = () => { state.t = Number(slider.value); dirty = true; };
+    speed.onchange = () => { state.speed = Number(speed.value); };
+    loop.onchange = () => { state.loop = loop.checked; };
+    $("reset").onclick = () => reset();
+    $("link").onclick = () => {  // this view and time as URL parameters (the pose exactly, c2w row-major)
+      const P = pose(), q = new URLSearchParams(location.search);
+      const c2w = [0, 1, 2].flatMap((r) => [P.right[r], P.down[r], P.fwd[r], P.eye[r]]).concat([0, 0, 0, 1]);
+      for (const k of ["eye", "target"]) q.delete(k);
+      q.set("t", String(state.t));
+      q.set("cam", c2w.map((v) => +v.toPrecision(9)).join(","));
+      q.set("fov", String(state.fov));
+      q.set("paused", "1");
+      history.replaceState(null, "", "?" + q.toString().replace(/%2C/g, ","));
+    };
+    window.addEventListener("keydown", (e) => {
+      if (e.key === " ") { play.onclick(); e.preventDefault(); } else if (e.key === "r") reset();
+    });
+
+    // orbit (left drag / one finger), pan (right or shift drag / two fingers), zoom (wheel / pinch)
+    const pointers = new Map();
+    let pinch = null;
+    const moved = () => { state.pose = null; dirty = true; };
+    function panBy(dx, dy) {
+      const P = pose(), f = 0.5 * canvas.clientHeight / Math.tan(0.5 * state.fov * Math.PI / 180);
+      state.target = add(state.target, add(mul(P.right, -dx * state.dist / f), mul(P.down, -dy * state.dist / f)));
+    }
+    canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+    canvas.addEventListener("pointerdown", (e) => {
+      canvas.setPointerCapture(e.pointerId);
+      pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey });
+    });
+    canvas.addEventListener("pointermove", (e) => {
+      const p = pointers.get(e.pointerId);
+      if (!p) return;
+      const dx = e.clientX - p.x, dy = e.clientY - p.y;
+      if (pointers.size === 1) {
+        if (state.pose) setOrbitFromPose();
+        if (p.pan) panBy(dx, dy);
+        else {
+          state.az -= dx * 0.005;
+          state.el = Math.max(-1.55, Math.min(1.55, state.el + dy * 0.005));
+        }
+      } else if (pointers.size === 2) {
+        const [a, b] = [...pointers.values()];
+        const mid0 = [(a.x + b.x) / 2, (a.y + b.y) / 2], span0 = Math.hypot(a.x - b.x, a.y - b.y);
+        p.x = e.clientX; p.y = e.clientY;
+        const mid1 = [(a.x + b.x) / 2, (a.y + b.y) / 2], span1 = Math.hypot(a.x - b.x, a.y - b.y);
+        if (state.pose) setOrbitFromPose();
+        panBy(mid1[0] - mid0[0], mid1[1] - mid0[1]);
+        if (span0 > 0 && span1 > 0) state.dist *= span0 / span1;
+      }
+      p.x = e.clientX; p.y = e.clientY;
+      moved();
+    });
+    const up_ = (e) => { pointers.delete(e.pointerId); pinch = null; };
+    canvas.addEventListener("pointerup", up_);
+    canvas.addEventListener("pointercancel", up_);
+    canvas.addEventListener("wheel", (e) => {
+      e.preventDefault();
+      if (state.pose) setOrbitFromPose();
+      state.dist *= Math.exp(e.deltaY * 0.001);
+      moved();
+    }, { passive: false });
+    function setOrbitFromPose() {  // keep the current pose's eye and direction, then orbit about its target
+      const P = state.pose;
+      setOrbit(P.eye, add(P.eye, mul(P.fwd, state.dist)));
+      state.pose = null;
+    }
+
+    // ---- URL state
+    reset();
+    if (params.has("t")) state.t = Math.max(t0, Math.min(t1, Number(params.get("t"))));
+    if (params.has("speed")) { state.speed = Number(params.get("speed")); speed.value = String(state.speed); }
+    if (params.get("loop") === "0") { state.loop = false; loop.checked = false; }
+    setPlaying(params.get("paused") !== "1" && t1 > t0);
+
+    // ---- frame loop: advance time, re-sort when the view or t changed, draw when anything changed
+    let last = null, frames = 0, fpsStart = performance.now();
+    function frame(now) {
+      resize();
+      if (state.playing && last !== null) {
+        let t = state.t + state.speed * (now - last) / 1000;
+        if (t > t1) {
+          if (state.loop && t1 > t0) t = t0 + ((t - t0) % (t1 - t0));
+          else { t = t1; setPlaying(false); }
+        }
+        state.t = t;
+        dirty = true;
+      }
+      last = now;
+      const P = pose();
+      const key = viewKey(P) + "|" + state.t;
+      if (key !== sortedKey) requestSort(P, key);
+      if (dirty) {
+        draw(P);
+        dirty = false;
+        frames++;
+        slider.value = state.t;
+        $("tlabel").textContent = "t = " + state.t.toFixed(3);
+        // for scripts and tests: frames drawn, whether the last one used the order at its view and time
+        const root = document.documentElement.dataset;
+        root.frames = String(Number(root.frames || 0) + 1);
+        root.sorted = key === sortedKey ? "1" : "0";
+        if (!ready && key === sortedKey) {
+          ready = true;
+          root.ready = "1";
+          console.log(`splatreel-web: ready (${H.count} Gaussians, ${drawCount} drawn, t = ${state.t})`);
+        }
+      }
+      if (now - fpsStart >= 1000) {
+        // frames drawn per second (none while nothing changes)
+        $("fps").textContent = frames ? (1000 * frames / (now - fpsStart)).toFixed(1) + " FPS" : "idle";
+        frames = 0;
+        fpsStart = now;
+      }
+      requestAnimationFrame(frame);
+    }
+    requestAnimationFrame(frame);
+  }
+
+  main().catch((e) => fail(e && e.message ? e.message : String(e)));
+})();

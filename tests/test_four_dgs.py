@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.checkpoint import save_checkpoint
 from splatreel.cli import main
 from splatreel.export import ExportError
 from splatreel.export.four_dgs import four_dgs_bytes

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.checkpoint import save_checkpoint
 from splatreel.cli import main
 from splatreel.errors import CheckpointError
 from splatreel.export import ExportError

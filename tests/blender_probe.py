@@ -75,6 +75,8 @@ def probe(path: str, out: Path, index: int) -> None:
             objects.append({"name": obj.name, "type": obj.type, "frame": f, "instances": instances.get(obj.name, 0),
                             "attributes": sorted(a.name for a in data.attributes),
                             "modifiers": [m.type for m in obj.modifiers],
+                            "shape_keys": len(obj.data.shape_keys.key_blocks) if getattr(obj.data, "shape_keys", None)
+                            else 0,
                             "matrix": np.array(obj.matrix_world).tolist()})
             for m in nodes:
                 m.show_viewport = True

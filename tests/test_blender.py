@@ -60,6 +60,9 @@ def exports(tmp_path_factory):
                      "--resolution", "40", "--quiet"] + ([] if fmt == "ply" else ["--no-usd"])) == 0
         files[fmt] = out / fmt / f"mesh_000000.{fmt}"
     files["mesh_sequence"] = out / "ply" / "mesh_sequence.usd"
+    assert main(["export", "mesh", ckpt, "--out", str(out / "deforming"), "--frame-count", str(FRAMES),
+                 "--resolution", "40", "--deforming", "--no-usd", "--quiet"]) == 0
+    files["morph"] = out / "deforming" / "mesh_animation.glb"
     probe_dir = out / "probe"
     probe_dir.mkdir()
     names = list(files)
@@ -157,3 +160,20 @@ def test_blender_renders_the_import_where_splatreel_renders_the_model(exports):
     iou = (masks[0] & masks[1]).sum() / (masks[0] | masks[1]).sum()
     centres = [np.argwhere(m).mean(0) for m in masks]
     assert iou > 0.5 and np.linalg.norm(centres[0] - centres[1]) < 6, (iou, centres)
+
+
+def test_the_deforming_mesh_plays_as_shape_keys(exports):
+    """``export mesh --deforming``'s mesh_animation.glb: Blender's glTF importer makes one mesh with a shape key per
+    frame and an action over them; at Blender frame f (time f / fps) the mesh is the export's frame f, in the model's
+    own axes (the file is +Y up, Blender turns it back)."""
+    import trimesh
+
+    _, _, out, seen = exports
+    report, arrays = seen["morph"]
+    mesh = _objects(report, "MESH")[0]
+    assert mesh["shape_keys"] == FRAMES + 1  # the basis and one per frame
+    frame = report["frames"][0]  # Blender's first frame: 1, time 1 / fps
+    want = trimesh.load(out / "deforming" / f"mesh_{frame:06d}.ply", process=False).vertices
+    np.testing.assert_allclose(arrays[f"{mesh['name']}@{frame}"], want, atol=1e-4)
+    last = trimesh.load(out / "deforming" / f"mesh_{FRAMES - 1:06d}.ply", process=False).vertices
+    np.testing.assert_allclose(arrays[f"{mesh['name']}@{report['frames'][1]}"], last, atol=1e-4)  # held after the end

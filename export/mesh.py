@@ -78,6 +78,8 @@ class MeshOptions:
     reference_time: float | None = None
     #: pieces with less than this share of a frame's surface area are dropped (floaters); 0 keeps them all
     min_piece_share: float = 0.02
+    #: with `deforming`: UVs (an xatlas atlas) and ``texture.png`` baked from the vertex colours, on the USD mesh
+    uv: bool = False
 
     def __post_init__(self) -> None:
         if self.format not in MESH_FORMATS:
@@ -86,6 +88,8 @@ class MeshOptions:
             raise ExportError(f"--resolution must be 8..1024, got {self.resolution}")
         if not (np.isfinite(self.iso) and self.iso > 0):
             raise ExportError(f"--iso must be a positive number, got {self.iso}")
+        if self.uv and not self.deforming:
+            raise ExportError("--uv lays out the one topology --deforming keeps; add --deforming")
         if self.color_neighbors < 1:
             raise ExportError(f"--color-neighbors must be >= 1, got {self.color_neighbors}")
 
@@ -383,6 +387,13 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
         reference = None if options.reference_time is None else \
             int(np.argmin(np.abs(np.asarray(times, np.float64) - options.reference_time)))
         meshes, drift = deforming_meshes(model, times, grid, options, reference, progress)
+        layout = None
+        if options.uv and len(meshes[0].faces):
+            from .uv import atlas, bake_colors, with_atlas
+
+            layout = atlas(meshes[0].vertices, meshes[0].faces)
+            texture = bake_colors(layout, meshes[0].colors)
+            meshes = with_atlas(meshes, layout)
     else:
         meshes = (frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill,
                              options.min_piece_share)
@@ -399,6 +410,15 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
 
             (tmp / "mesh_animation.glb").write_bytes(morph_animation_glb(meshes, options.fps, options.up_axis))
             extra.append("mesh_animation.glb")
+        if options.uv and layout is not None:
+            import cv2
+
+            from .uv import texture_material
+
+            (tmp / "texture.png").write_bytes(cv2.imencode(".png", cv2.cvtColor(texture, cv2.COLOR_RGB2BGR))[1])
+            extra.append("texture.png")
+            if usd is not None:
+                texture_material(usd.stage, usd.mesh, layout.uvs, "./texture.png")
         if usd is not None:
             from .usd import save_stage
 
@@ -437,6 +457,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--deforming", action="store_true",
                    help="one mesh whose vertices move with the model (the same faces at every frame, which DCC "
                         "tools animate as one object) instead of one surface per frame")
+    p.add_argument("--uv", action="store_true",
+                   help="with --deforming: UVs (an xatlas atlas, fixed while the vertices move) and texture.png "
+                        "baked from the vertex colours, bound on mesh_sequence.usd through a UsdPreviewSurface")
     p.add_argument("--reference-time", type=finite_number, default=None, metavar="T",
                    help="with --deforming: the model time whose surface is carried through the animation "
                         "(default: the frame that shows the most)")
@@ -452,7 +475,7 @@ def run(model, times, out, args) -> list[Path]:
                           up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)),
                           meters_per_unit=args.meters_per_unit, deforming=args.deforming,
                           min_piece_share=0.0 if args.keep_all_pieces else MeshOptions.min_piece_share,
-                          reference_time=args.reference_time)
+                          reference_time=args.reference_time, uv=args.uv)
     if args.reference_time is not None and not args.deforming:
         raise ExportError("--reference-time picks the surface --deforming carries; add --deforming")
     return write_mesh_sequence(model, out, times, options, force=args.force, progress=args.progress)

@@ -77,6 +77,9 @@ def probe(path: str, out: Path, index: int) -> None:
                             "modifiers": [m.type for m in obj.modifiers],
                             "shape_keys": len(obj.data.shape_keys.key_blocks) if getattr(obj.data, "shape_keys", None)
                             else 0,
+                            "images": sorted(Path(n.image.filepath).name for m in obj.data.materials if m and m.node_tree
+                                             for n in m.node_tree.nodes if n.bl_idname == "ShaderNodeTexImage"
+                                             and n.image),
                             "matrix": np.array(obj.matrix_world).tolist()})
             for m in nodes:
                 m.show_viewport = True

@@ -61,8 +61,9 @@ def exports(tmp_path_factory):
         files[fmt] = out / fmt / f"mesh_000000.{fmt}"
     files["mesh_sequence"] = out / "ply" / "mesh_sequence.usd"
     assert main(["export", "mesh", ckpt, "--out", str(out / "deforming"), "--frame-count", str(FRAMES),
-                 "--resolution", "40", "--deforming", "--no-usd", "--quiet"]) == 0
+                 "--resolution", "40", "--deforming", "--uv", "--quiet"]) == 0
     files["morph"] = out / "deforming" / "mesh_animation.glb"
+    files["textured"] = out / "deforming" / "mesh_sequence.usd"
     probe_dir = out / "probe"
     probe_dir.mkdir()
     names = list(files)
@@ -177,3 +178,13 @@ def test_the_deforming_mesh_plays_as_shape_keys(exports):
     np.testing.assert_allclose(arrays[f"{mesh['name']}@{frame}"], want, atol=1e-4)
     last = trimesh.load(out / "deforming" / f"mesh_{FRAMES - 1:06d}.ply", process=False).vertices
     np.testing.assert_allclose(arrays[f"{mesh['name']}@{report['frames'][1]}"], last, atol=1e-4)  # held after the end
+
+
+def test_the_textured_deforming_mesh_arrives_with_its_uvs_and_texture(exports):
+    """``--deforming --uv``: Blender's USD importer reads the ``st`` primvar as a UV map and the UsdPreviewSurface
+    as a material with the texture image, on one mesh animated by a MeshSequenceCache."""
+    _, _, _, seen = exports
+    report, _ = seen["textured"]
+    mesh = _objects(report, "MESH")[0]
+    assert "st" in mesh["attributes"] and mesh["images"] == ["texture.png"]
+    assert "MESH_SEQUENCE_CACHE" in mesh["modifiers"]

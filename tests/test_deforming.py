@@ -102,3 +102,30 @@ def test_the_morph_target_animation_plays_the_frames_and_validates(tmp_path, val
         np.testing.assert_allclose(base + read(prim.targets[k]["POSITION"]), want, atol=1e-5)
     report = validate(glb)[0]
     assert report["numErrors"] == 0 and report["numWarnings"] == 0, report["messages"][:5]
+
+
+def test_uv_gives_one_atlas_and_a_texture_usd_and_blender_read(tmp_path):
+    from pxr import Usd, UsdGeom, UsdShade
+
+    model = build_model("wave", num_gaussians=6000)
+    times = frame_times(model.time_range, 4)
+    paths = write_mesh_sequence(model, tmp_path / "d", times, MeshOptions(resolution=32, deforming=True, uv=True))
+    names = {p.name for p in paths}
+    assert {"texture.png", "mesh_sequence.usd"} <= names
+    import cv2
+
+    texture = cv2.imread(str(tmp_path / "d" / "texture.png"))
+    assert texture.shape == (1024, 1024, 3) and texture.std() > 5  # colours, not an empty image
+    stage = Usd.Stage.Open(str(tmp_path / "d" / "mesh_sequence.usd"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Mesh"))
+    st = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("st")
+    uvs = np.asarray(st.Get())
+    assert len(uvs) == len(mesh.GetPointsAttr().Get(0)) and uvs.min() >= 0 and uvs.max() <= 1
+    assert st.GetInterpolation() == "vertex" and not st.GetAttr().GetNumTimeSamples()  # fixed while vertices move
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    assert material and material.GetPath() == "/World/Looks/Texture"
+    from test_export import usd_validation_errors
+
+    assert usd_validation_errors(tmp_path / "d" / "mesh_sequence.usd") == []
+    with pytest.raises(Exception, match="add --deforming"):
+        MeshOptions(uv=True)

@@ -18,16 +18,21 @@ meshes for that span; the manifest records every measured frame.
 
 from __future__ import annotations
 
+import math
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
+
+from splatreel.constants import TEMPORAL_CULL
 
 from .base import iter_frames
 
 #: Gaussians that carry each vertex
 CARRIERS = 16
+#: sub-steps of one frame step at most (see `substeps`)
+MAX_SUBSTEPS = 16
 #: Laplacian averaging steps of a displacement field (each mixes a vertex half-way to its neighbours' mean)
 SMOOTHING_STEPS = 40
 #: tangential relaxation steps after each frame's vertices are drawn onto its surface
@@ -64,6 +69,71 @@ def carriers(vertices: np.ndarray, frame, dilation: float, k: int = CARRIERS) ->
     nearest_only[:, 0] = 1.0
     w = np.where(total > 1e-30, w / np.maximum(total, 1e-300), nearest_only)
     return live[near], w
+
+
+@dataclass(frozen=True)
+class MotionState:
+    """What carrying needs of a frame, at any time: means, opacities (temporal factor applied), scales and w-first
+    quaternions ``[N, ...]`` and the time. A light stand-in for `SplatFrame` between frames."""
+
+    time: float
+    means: np.ndarray
+    opacities: np.ndarray
+    scales: np.ndarray
+    quats: np.ndarray
+
+
+def motion_states(model, times: Sequence[float]) -> list:
+    """States of `model` at `times`: for a native 4D model from its linear motion, conditioned once (the
+    conditional covariance does not change with time); otherwise the model's slices."""
+    from .base import linear_motion
+
+    if model.kind != "gaussians4d":
+        return list(iter_frames(model, times))
+    g = linear_motion(model, "a deforming mesh")
+    out = []
+    for t in times:
+        dt = float(t) - g.t_means
+        marginal = np.exp(-0.5 * dt * dt / g.var_t)
+        opacity = np.where(marginal > TEMPORAL_CULL, g.opacity * marginal, 0.0)
+        out.append(MotionState(float(t), g.means + g.velocity * dt[:, None], opacity, g.scales, g.quats))
+    return out
+
+
+def substeps(model, start, t_end: float, end) -> tuple[list, list]:
+    """(starts, ends): the frame step from `start` to `end` (at `t_end`) cut into sub-steps no longer than half the
+    median temporal std-dev of the Gaussians alive at `start`, so that each sub-step is carried by Gaussians that
+    are still alive at its end (native 4D Gaussians are short-lived; their linear motion means nothing past their
+    life). Keyframed and static models: one step."""
+    t_scales = getattr(model, "t_scales", None)
+    live = start.opacities > 0
+    if t_scales is None or not live.any():
+        return [start], [end]
+    sigma = float(np.median(t_scales.detach().double().numpy()[live]))
+    count = int(min(MAX_SUBSTEPS, max(1, math.ceil(abs(t_end - start.time) / (0.5 * max(sigma, 1e-9))))))
+    if count == 1:
+        return [start], [end]
+    chain = [start, *motion_states(model, np.linspace(start.time, t_end, count + 1)[1:-1]), end]
+    return chain[:-1], chain[1:]
+
+
+def rigid_carry(points: np.ndarray, before: np.ndarray, after: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Each of `points` ``[V, 3]`` moved by the weighted rigid motion (rotation and translation, Kabsch/Procrustes)
+    that best takes its carriers from `before` to `after` (``[V, k, 3]``, `weights` ``[V, k]`` summing to 1): a
+    turning surface turns its vertices with it, where the mean displacement would shear them. Where the carriers
+    cannot fix a rotation (fewer than three spread out), the mean displacement."""
+    c0 = (weights[..., None] * before).sum(1)
+    c1 = (weights[..., None] * after).sum(1)
+    a, b = before - c0[:, None], after - c1[:, None]
+    h = np.einsum("vk,vki,vkj->vij", weights, a, b)  # cross-covariance
+    u, sv, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("vij,vjk->vik", vt.transpose(0, 2, 1), u.transpose(0, 2, 1))))
+    fix = np.ones_like(sv)
+    fix[:, 2] = d
+    rot = np.einsum("vji,vj,vkj->vik", vt, fix, u)  # V diag(1, 1, d) Uᵀ
+    spread = sv[:, 1] > 1e-3 * np.maximum(sv[:, 0], 1e-30)  # a plane's worth of carriers at least
+    moved = np.einsum("vij,vj->vi", rot, points - c0) + c1
+    return np.where(spread[:, None], moved, points + (c1 - c0))
 
 
 def vertex_neighbours(faces: np.ndarray, count: int):
@@ -143,10 +213,11 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
     # by the Gaussians alive at the frame it starts from; then the vertices are drawn onto that frame's own surface
     for step in (1, -1):
         for i in range(ref + step, len(frames) if step > 0 else -1, step):
-            start, here = frames[i - step], vertices[i - step]
-            idx, w = carriers(here, start, dilation)
-            moved = frames[i].means.astype(np.float64) - start.means.astype(np.float64)
-            carried = here + smooth((w[..., None] * moved[idx]).sum(1), neighbours)
+            carried = vertices[i - step]
+            for start, end in zip(*substeps(model, frames[i - step], times[i], frames[i])):
+                idx, w = carriers(carried, start, dilation)
+                moved = rigid_carry(carried, start.means.astype(np.float64)[idx], end.means.astype(np.float64)[idx], w)
+                carried = carried + smooth(moved - carried, neighbours)
             surfaces[i] = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
                                      options.min_piece_share)
             offset = onto_surface(carried, surfaces[i]) - carried  # smoothed below: no vertex jumps alone

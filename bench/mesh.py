@@ -1,0 +1,114 @@
+"""Mesh export against the procedural samples' true surfaces: per-frame meshes and one deforming mesh.
+
+    python bench/mesh.py [--json OUT.json] [--samples spinner,wave,morph,texture] [--frames 12] [--resolution 64]
+
+For each sample's exact model (`splatreel.samples.build_model`, 20k Gaussians) and each method: the two-way Chamfer
+distance to the true surface (mean of both directions' mean nearest distances over 5k surface samples and the mesh's
+vertices, as a share of the object's size; mean over frames and worst frame), normal consistency (mean |n · n_true|
+of each mesh vertex against its nearest true sample's face normal), vertices, pieces and seconds. For the deforming
+mesh also the slide: how far its vertices wander from the material points of the true surface they started on
+(tests/test_deforming.py explains the measure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+
+def surface_metrics(mesh, name: str, t: float) -> tuple[float, float]:
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from splatreel.samples import mesh_at
+
+    vertices, faces, _ = mesh_at(name, t)
+    truth = trimesh.Trimesh(vertices, faces, process=False)
+    points, face_ids = trimesh.sample.sample_surface_even(truth, 5000, seed=0)
+    size = float(np.linalg.norm(truth.bounds[1] - truth.bounds[0]))
+    d_mesh, nearest = cKDTree(points).query(mesh.vertices)
+    chamfer = 0.5 * (float(cKDTree(mesh.vertices).query(points)[0].mean()) + float(d_mesh.mean())) / size
+    consistency = float(np.abs((mesh.vertex_normals * truth.face_normals[face_ids[nearest]]).sum(1)).mean())
+    return chamfer, consistency
+
+
+def slide(meshes, name: str, times, ref: int) -> float:
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from splatreel.samples import mesh_at
+
+    vertices, faces, _ = mesh_at(name, float(times[ref]))
+    truth = trimesh.Trimesh(vertices, faces, process=False)
+    samples, face_ids = trimesh.sample.sample_surface_even(truth, 100000, seed=0)
+    near = cKDTree(samples).query(meshes[ref].vertices)[1]
+    bary = trimesh.triangles.points_to_barycentric(truth.triangles[face_ids[near]], samples[near])
+    size = float(np.linalg.norm(truth.bounds[1] - truth.bounds[0]))
+    worst = 0.0
+    for k, t in enumerate(times):
+        vertices, faces, _ = mesh_at(name, float(t))
+        material = (bary[:, :, None] * vertices[faces[face_ids[near]]]).sum(1)
+        worst = max(worst, float(np.linalg.norm(meshes[k].vertices - material, axis=1).mean()) / size)
+    return worst
+
+
+def run(samples: list[str], frames: int, resolution: int) -> list[dict]:
+    import trimesh
+
+    from splatreel.export import frame_times
+    from splatreel.export.mesh import MeshOptions, write_mesh_sequence
+    from splatreel.samples import build_model
+
+    rows = []
+    for name in samples:
+        model = build_model(name, num_gaussians=20000)
+        times = frame_times(model.time_range, frames)
+        for method in ("per-frame", "deforming"):
+            with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                start = time.perf_counter()
+                paths = write_mesh_sequence(model, Path(tmp) / "m", times, MeshOptions(
+                    resolution=resolution, usd=False, deforming=method == "deforming"))
+                seconds = time.perf_counter() - start
+                meshes = [trimesh.load(p, process=False) for p in paths[:frames]]
+                metrics = [surface_metrics(m, name, float(t)) for m, t in zip(meshes, times)]
+                row = {"sample": name, "method": method, "frames": frames, "resolution": resolution,
+                       "chamfer_mean": round(float(np.mean([c for c, _ in metrics])), 4),
+                       "chamfer_worst": round(float(np.max([c for c, _ in metrics])), 4),
+                       "normal_consistency": round(float(np.mean([n for _, n in metrics])), 3),
+                       "vertices": int(np.mean([len(m.vertices) for m in meshes])),
+                       "pieces": int(max(len(m.split(only_watertight=False)) for m in meshes)),
+                       "seconds": round(seconds, 1)}
+                if method == "deforming":
+                    ref = json.loads(paths[-1].read_text())["deforming"]["reference_frame"]
+                    row["slide_worst"] = round(slide(meshes, name, times, ref), 4)
+                rows.append(row)
+    return rows
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--json", metavar="OUT", help="also write the rows as JSON")
+    p.add_argument("--samples", default="spinner,wave,morph,texture")
+    p.add_argument("--frames", type=int, default=12)
+    p.add_argument("--resolution", type=int, default=64)
+    args = p.parse_args()
+    rows = run(args.samples.split(","), args.frames, args.resolution)
+    print(f"{'sample':<9}{'method':<11}{'chamfer':>9}{'worst':>8}{'normals':>9}{'verts':>7}{'pieces':>7}"
+          f"{'slide':>7}{'s':>7}")
+    for r in rows:
+        print(f"{r['sample']:<9}{r['method']:<11}{r['chamfer_mean']:>9.4f}{r['chamfer_worst']:>8.4f}"
+              f"{r['normal_consistency']:>9.3f}{r['vertices']:>7}{r['pieces']:>7}"
+              f"{r.get('slide_worst', float('nan')):>7.3f}{r['seconds']:>7.1f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"rows": rows}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -116,7 +116,7 @@ _READERS: list[Reader] = [
 _WRITERS: list[Writer] = [
     Writer("usd", "one OpenUSD stage with time-sampled splats, a point instancer and points",
            "OUT.usd|.usda|.usdc|.usdz", "splatreel.export.usd"),
-    Writer("mesh", "one marching-cubes surface per frame (obj/ply/glb) + mesh_sequence.usd", "OUTDIR",
+    Writer("mesh", "surfaces per frame, or one deforming mesh (obj/ply/glb, mesh_sequence.usd)", "OUTDIR",
            "splatreel.export.mesh"),
     Writer("ply", "one standard 3DGS PLY per frame (+ manifest.json), for other splat viewers", "OUTDIR",
            "splatreel.export.ply"),

@@ -1,17 +1,18 @@
-"""``splatreel export FORMAT CKPT --out OUT``: OpenUSD, per-frame meshes or per-frame 3DGS PLY (formats from the
-registry in `splatreel.export`)."""
+"""``splatreel export FORMAT CKPT --out OUT``: the formats of the registry in `splatreel.formats` (OpenUSD, meshes,
+3DGS PLY, glTF, a web player, .splatv, .4dgs)."""
 
 from __future__ import annotations
 
 import argparse
 
 ORDER = 60
-HELP = "export a model to OpenUSD (splats, instancer, points), per-frame meshes or per-frame 3DGS PLY"
+HELP = ("export a model to OpenUSD, meshes, 3DGS PLY, glTF, a static web player, .splatv or .4dgs, for other "
+        "tools")
 DESCRIPTION = HELP + """.
 
-Frames: frame i of N (--frame-count) is at model time t0 + i (t1 - t0) / (N - 1), where [t0, t1] is the model's
-time range or --start/--end (which must lie inside it); in USD, frame i is time code i and --fps sets
-timeCodesPerSecond.
+Frames (usd, mesh, ply, gltf): frame i of N (--frame-count) is at model time t0 + i (t1 - t0) / (N - 1), where
+[t0, t1] is the model's time range or --start/--end (outside it: a warning); in USD, frame i is time code i and
+--fps sets timeCodesPerSecond. The web player, .splatv and .4dgs hold the whole animation (no frame options).
 Gaussians keep their model order at every frame; those invisible at a frame get opacity 0.
 Run `splatreel export FORMAT --help` for a format's options."""
 

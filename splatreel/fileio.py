@@ -71,8 +71,9 @@ def _writing(path: Path, tmp: str | os.PathLike | None = None) -> Iterator[None]
         yield
     except OSError as exc:
         name = str(exc.filename or "")
-        ours = not name or name.startswith(str(path.parent)) or (tmp is not None and name.startswith(str(tmp)))
-        if exc.errno in _WRITE_ERRNOS and ours:
+        temporary = Path(name).name.startswith(f".{path.name}.") or (tmp is not None and name.startswith(str(tmp)))
+        ours = not name or name.startswith(str(path.parent)) or temporary
+        if (exc.errno in _WRITE_ERRNOS and ours) or temporary:  # anything failing on our temp name is the output's
             raise write_error(path, exc) from None
         raise
 

@@ -73,3 +73,16 @@ def test_cli_reports_an_output_under_a_file_in_one_line(tmp_path, capsys):
     assert main(["render", "--out", str(blocker / "still.png"), "--size", "32x24", "--quiet"]) == 1
     err = capsys.readouterr().err.strip()
     assert err == f"splatreel render: error: {blocker / 'still.png'}: cannot write: {blocker} is a file, not a folder"
+
+
+def test_a_folder_that_refuses_new_files_is_named_not_the_temp_file(tmp_path, monkeypatch):
+    """E.g. /proc, where creating the temp file fails with ENOENT: still the user's path in one line."""
+    out = tmp_path / "x.splatv"
+
+    def refuse(*args, **kwargs):
+        raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), str(tmp_path / ".x.splatv.tmp.abc.splatv"))
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    with pytest.raises(OutputWriteError) as info:
+        atomic_write_bytes(out, b"x")
+    assert str(info.value) == f"{out}: cannot write: {os.strerror(errno.ENOENT)}"

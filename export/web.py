@@ -190,7 +190,14 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
 
 
 def _asset(name: str) -> str:
-    return resources.files("splatreel.export").joinpath("web_player", name).read_text(encoding="utf-8")
+    """A file of the player; ``player.js`` gets the desktop renderer's footprint code in its vertex shader (one copy
+    of the EWA projection in GLSL: shaders/splat_footprint.glsl)."""
+    text = resources.files("splatreel.export").joinpath("web_player", name).read_text(encoding="utf-8")
+    if name == SCRIPT_NAME:
+        from splatreel.gl import shader_source
+
+        text = text.replace("/*SPLAT_FOOTPRINT*/", shader_source("splat_footprint").replace("`", "'"))
+    return text
 
 
 def page_html(title: str, data_b64: str | None = None) -> str:

@@ -54,6 +54,8 @@ const float TWO_PI = 6.283185307179586;
 
 #define SH_BASES ((SH_DEGREE + 1) * (SH_DEGREE + 1))
 
+#include "splat_footprint.glsl"
+
 void cull() {
     o_geom = vec4(0.0);
     o_axes = vec4(0.0);
@@ -124,58 +126,25 @@ void main() {
     if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
     vec3 mean = a_mean_t.xyz + a_motion.xyz * dt;
 
-    // --- EWA projection ---------------------------------------------------------------------------------------
+    // --- EWA projection (splat_footprint.glsl) ------------------------------------------------------------------
     vec3 p = u_rot * mean + u_trans;
     if (!(p.z > u_near)) { cull(); return; }
-    float fx = u_intrinsics.x, fy = u_intrinsics.y;
-    float cx = u_intrinsics.z, cy = u_intrinsics.w;
-    float slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.x / fx;
-    float slack_y = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.y / fy;
-    float tx = p.z * clamp(p.x / p.z, -(cx / fx + slack_x), (u_size.x - cx) / fx + slack_x);
-    float ty = p.z * clamp(p.y / p.z, -(cy / fy + slack_y), (u_size.y - cy) / fy + slack_y);
-    float iz = 1.0 / p.z;
-    vec3 j0 = vec3(fx * iz, 0.0, -fx * tx * iz * iz);
-    vec3 j1 = vec3(0.0, fy * iz, -fy * ty * iz * iz);
-    // rows of J R (R = world -> camera rotation)
-    vec3 t0 = j0 * u_rot;
-    vec3 t1 = j1 * u_rot;
     float s2 = u_scale * u_scale;
     mat3 cov = s2 * mat3(a_cov_a.x, a_cov_a.y, a_cov_a.z,
                          a_cov_a.y, a_cov_a.w, a_cov_b.x,
                          a_cov_a.z, a_cov_b.x, a_cov_b.y);
-    vec3 ct0 = cov * t0;
-    float a = dot(t0, ct0) + EPS2D;
-    float b = dot(t1, ct0);
-    float c = dot(t1, cov * t1) + EPS2D;
-    float det = a * c - b * b;
-    if (!(det > 0.0)) { cull(); return; }
-
-    // principal axes of the 2D covariance: lambda1 >= lambda2 > 0
-    float mid = 0.5 * (a + c);
-    float disc = sqrt(max(mid * mid - det, 0.0));
-    float l1 = mid + disc;
-    float l2 = det / l1;
-    vec2 e1 = vec2(b, l1 - a);
-    float len1 = length(e1);
-    e1 = len1 > 1e-12 * l1 ? e1 / len1 : (a >= c ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
-    vec2 e2 = vec2(-e1.y, e1.x);
-    vec2 axis1 = e1 * sqrt(l1);
-    vec2 axis2 = e2 * sqrt(l2);
-
-    // footprint: alpha = o exp(-r^2 / 2) >= ALPHA_THRESHOLD exactly inside r^2 = 2 ln(o / ALPHA_THRESHOLD)
-    float radius = sqrt(2.0 * log(opacity / ALPHA_THRESHOLD));
+    Footprint f;
+    if (!splat_footprint(p, u_rot, cov, opacity, u_intrinsics, u_size, f)) { cull(); return; }
     // the footprint caps (off: 1e30), as sorting._depth_key: std-devs, then pixels along the major axis
-    radius = min(radius, min(u_max_radius.x, u_max_radius.y / sqrt(l1)));
-    vec2 centre = vec2(fx * p.x * iz + cx, fy * p.y * iz + cy);
-    // the reference's square box (radius in whole pixels) and the tiles it touches
-    float box = ceil(RADIUS_SIGMAS * sqrt(mid + sqrt(max(EIGEN_FLOOR, mid * mid - det))));
-    vec2 half_box = min(vec2(box), radius * sqrt(vec2(a, c)) + 1.0);
+    float radius = min(f.radius, min(u_max_radius.x, u_max_radius.y / sqrt(f.major)));
+    vec2 centre = f.centre;
+    vec2 half_box = min(vec2(f.box), radius * f.spread + 1.0);
     vec2 lo = centre - half_box, hi = centre + half_box;
-    if (any(lessThanEqual(centre + box, vec2(0.0))) || any(greaterThanEqual(centre - box, u_size))
-        || any(lessThan(hi, vec2(0.0))) || any(greaterThan(lo, u_size))) {
+    if (footprint_outside(f, half_box, u_size)) {
         cull();
         return;
     }
+    vec2 axis1 = f.axis1, axis2 = f.axis2;
     o_geom = vec4(centre, max(radius, 1e-6), p.z);
     o_axes = vec4(axis1, axis2);
     // the value modes composite their value as a grey colour, so the splat shader has one path for all modes

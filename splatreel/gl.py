@@ -52,7 +52,14 @@ def preprocess(source: str, stage: str, defines: Mapping[str, object] | None = N
         raise ShaderError(f"{name}: the first line must be a #version directive")
     all_defines: dict[str, object] = {stage: 1, **GLSL_DEFINES, **(defines or {})}
     head = [lines[first]] + [f"#define {k} {_glsl_value(v)}" for k, v in all_defines.items()]
-    return "\n".join(head + [f"#line {first + 2}"] + lines[first + 1:]) + "\n"
+    body = []
+    for number, line in enumerate(lines[first + 1:], first + 2):
+        included = re.match(r'\s*#include\s+"([\w.]+)"\s*$', line)
+        if included:  # a shared part (shaders/<name>.glsl), then the line numbers of this file again
+            body += ["#line 1", shader_source(included.group(1)), f"#line {number + 1}"]
+        else:
+            body.append(line)
+    return "\n".join(head + [f"#line {first + 2}"] + body) + "\n"
 
 
 def stages_in(source: str) -> list[str]:

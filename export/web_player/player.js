@@ -169,6 +169,8 @@ vec3 sh_color(int row0, int row1, float w, vec3 dir, float tau) {
   return max(result + 0.5, vec3(0.0));
 }
 
+/*SPLAT_FOOTPRINT*/
+
 void cull() {
   gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume
   v_uv = vec2(0.0);
@@ -202,46 +204,17 @@ void main() {
 #endif
   if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
 
-  // EWA projection (the desktop pre-pass)
+  // EWA projection: splat_footprint(), the desktop pre-pass's own (shaders/splat_footprint.glsl, inserted above)
   vec3 p = u_rot * mean + u_trans;
   if (!(p.z > NEAR_PLANE)) { cull(); return; }
-  float fx = u_intr.x, fy = u_intr.y, cx = u_intr.z, cy = u_intr.w;
-  float slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.x / fx;
-  float slack_y = (FRUSTUM_CLAMP - 1.0) * 0.5 * u_size.y / fy;
-  float tx = p.z * clamp(p.x / p.z, -(cx / fx + slack_x), (u_size.x - cx) / fx + slack_x);
-  float ty = p.z * clamp(p.y / p.z, -(cy / fy + slack_y), (u_size.y - cy) / fy + slack_y);
-  float iz = 1.0 / p.z;
-  vec3 j0 = vec3(fx * iz, 0.0, -fx * tx * iz * iz);
-  vec3 j1 = vec3(0.0, fy * iz, -fy * ty * iz * iz);
-  vec3 t0 = j0 * u_rot;  // rows of J R
-  vec3 t1 = j1 * u_rot;
   mat3 ms = rotmat(quat) * mat3(scale.x, 0.0, 0.0, 0.0, scale.y, 0.0, 0.0, 0.0, scale.z);
-  mat3 cov = ms * transpose(ms);
-  vec3 ct0 = cov * t0;
-  float a = dot(t0, ct0) + EPS2D;
-  float b = dot(t1, ct0);
-  float c = dot(t1, cov * t1) + EPS2D;
-  float det = a * c - b * b;
-  if (!(det > 0.0)) { cull(); return; }
-  float mid = 0.5 * (a + c);
-  float disc = sqrt(max(mid * mid - det, 0.0));
-  float l1 = mid + disc;
-  float l2 = det / l1;
-  vec2 e1 = vec2(b, l1 - a);
-  float len1 = length(e1);
-  e1 = len1 > 1e-12 * l1 ? e1 / len1 : (a >= c ? vec2(1.0, 0.0) : vec2(0.0, 1.0));
-  vec2 e2 = vec2(-e1.y, e1.x);
-  vec2 axis1 = e1 * sqrt(l1);
-  vec2 axis2 = e2 * sqrt(l2);
-  // alpha = o exp(-r^2 / 2) >= ALPHA_THRESHOLD exactly inside r^2 = 2 ln(o / ALPHA_THRESHOLD)
-  float radius = sqrt(2.0 * log(opacity / ALPHA_THRESHOLD));
-  vec2 centre = vec2(fx * p.x * iz + cx, fy * p.y * iz + cy);
-  // the reference rasterizer's square box (whole pixels) and the tiles it touches
-  float box = ceil(RADIUS_SIGMAS * sqrt(mid + sqrt(max(EIGEN_FLOOR, mid * mid - det))));
-  vec2 half_box = min(vec2(box), radius * sqrt(vec2(a, c)) + 1.0);
+  Footprint f;
+  if (!splat_footprint(p, u_rot, ms * transpose(ms), opacity, u_intr, u_size, f)) { cull(); return; }
+  float radius = f.radius;
+  vec2 centre = f.centre, axis1 = f.axis1, axis2 = f.axis2;
+  vec2 half_box = min(vec2(f.box), radius * f.spread + 1.0);
   vec2 lo = centre - half_box, hi = centre + half_box;
-  if (any(lessThanEqual(centre + box, vec2(0.0))) || any(greaterThanEqual(centre - box, u_size))
-      || any(lessThan(hi, vec2(0.0))) || any(greaterThan(lo, u_size))) { cull(); return; }
+  if (footprint_outside(f, half_box, u_size)) { cull(); return; }
 
   vec2 corner = vec2(float(gl_VertexID & 1), float(gl_VertexID >> 1)) * 2.0 - 1.0;
   vec2 uv = corner * max(radius, 1e-6);

@@ -39,23 +39,9 @@ def surface_metrics(mesh, name: str, t: float) -> tuple[float, float]:
 
 
 def slide(meshes, name: str, times, ref: int) -> float:
-    import trimesh
-    from scipy.spatial import cKDTree
+    from splatreel.samples.truth import material_slide
 
-    from splatreel.samples import mesh_at
-
-    vertices, faces, _ = mesh_at(name, float(times[ref]))
-    truth = trimesh.Trimesh(vertices, faces, process=False)
-    samples, face_ids = trimesh.sample.sample_surface_even(truth, 100000, seed=0)
-    near = cKDTree(samples).query(meshes[ref].vertices)[1]
-    bary = trimesh.triangles.points_to_barycentric(truth.triangles[face_ids[near]], samples[near])
-    size = float(np.linalg.norm(truth.bounds[1] - truth.bounds[0]))
-    worst = 0.0
-    for k, t in enumerate(times):
-        vertices, faces, _ = mesh_at(name, float(t))
-        material = (bary[:, :, None] * vertices[faces[face_ids[near]]]).sum(1)
-        worst = max(worst, float(np.linalg.norm(meshes[k].vertices - material, axis=1).mean()) / size)
-    return worst
+    return max(material_slide([m.vertices for m in meshes], name, times, ref))
 
 
 def run(samples: list[str], frames: int, resolution: int) -> list[dict]:

@@ -1,4 +1,4 @@
-"""``splatreel export web``: a static WebGL2 player of the whole model (``index.html`` + ``player.js`` +
+"""``splatreel export web``: a static WebGL2 player of the whole model (``index.html`` + ``shaders.js`` + ``player.js`` +
 ``splats.bin``, or one self-contained HTML file with ``--single-file``). No build step, no network at view time.
 
 The page evaluates the model at time t on the GPU exactly as the desktop renderer does (`splatreel.viewer.renderer`,
@@ -45,7 +45,8 @@ from .base import ExportError, resolve_up_axis
 
 MAGIC = b"SRWB"
 DATA_NAME = "splats.bin"
-SCRIPT_NAME = "player.js"
+#: the page's scripts, in loading order: the shaders, then the player that compiles them
+SCRIPT_NAMES = ("shaders.js", "player.js")
 #: texels per row of the data textures (WebGL2 guarantees MAX_TEXTURE_SIZE >= 2048; SwiftShader and GPUs give more)
 TEXTURE_WIDTH = 2048
 #: --single-file refuses models whose data is larger than this (base64 in an HTML file grows by 4/3)
@@ -190,10 +191,10 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
 
 
 def _asset(name: str) -> str:
-    """A file of the player; ``player.js`` gets the desktop renderer's footprint code in its vertex shader (one copy
+    """A file of the player; ``shaders.js`` gets the desktop renderer's footprint code in its vertex shader (one copy
     of the EWA projection in GLSL: shaders/splat_footprint.glsl)."""
     text = resources.files("splatreel.export").joinpath("web_player", name).read_text(encoding="utf-8")
-    if name == SCRIPT_NAME:
+    if name == "shaders.js":
         from splatreel.gl import shader_source
 
         text = text.replace("/*SPLAT_FOOTPRINT*/", shader_source("splat_footprint").replace("`", "'"))
@@ -201,13 +202,15 @@ def _asset(name: str) -> str:
 
 
 def page_html(title: str, data_b64: str | None = None) -> str:
-    """``index.html``: loads ``player.js`` and ``splats.bin`` beside it, or (with `data_b64`) holds both inline."""
+    """``index.html``: loads the scripts and ``splats.bin`` beside it, or (with `data_b64`) holds them all inline."""
     html = _asset("index.html").replace("{{TITLE}}", _escape(title))
     if data_b64 is None:
-        return html.replace("{{DATA}}", "").replace("{{SCRIPT}}", f'<script src="{SCRIPT_NAME}"></script>')
-    script = _asset(SCRIPT_NAME).replace("</script", "<\\/script")
+        tags = "\n".join(f'<script src="{name}"></script>' for name in SCRIPT_NAMES)
+        return html.replace("{{DATA}}", "").replace("{{SCRIPT}}", tags)
+    inline = "\n".join("<script>\n" + _asset(name).replace("</script", "<\\/script") + "</script>"
+                       for name in SCRIPT_NAMES)
     data = f'<script id="splat-data" type="application/octet-stream">{data_b64}</script>'
-    return html.replace("{{DATA}}", data).replace("{{SCRIPT}}", f"<script>\n{script}</script>")
+    return html.replace("{{DATA}}", data).replace("{{SCRIPT}}", inline)
 
 
 def _escape(text: str) -> str:
@@ -230,9 +233,10 @@ def write_web(model, out: str | Path, *, single_file: bool = False, force: bool 
         return [atomic_write_bytes(out, html.encode("utf-8"), force)]
     with atomic_dir(out, force) as tmp:
         (tmp / "index.html").write_text(page_html(title), encoding="utf-8")
-        (tmp / SCRIPT_NAME).write_text(_asset(SCRIPT_NAME), encoding="utf-8")
+        for name in SCRIPT_NAMES:
+            (tmp / name).write_text(_asset(name), encoding="utf-8")
         (tmp / DATA_NAME).write_bytes(data)
-    return [out / "index.html", out / SCRIPT_NAME, out / DATA_NAME]
+    return [out / "index.html", *(out / name for name in SCRIPT_NAMES), out / DATA_NAME]
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

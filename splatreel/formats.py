@@ -126,7 +126,7 @@ _WRITERS: list[Writer] = [
            "OUT.splatv", "splatreel.export.splatv", sampled=False),
     Writer("4dgs", "the whole native 4D model as one .4dgs container (the fourdgs package's format)", "OUT.4dgs",
            "splatreel.export.four_dgs", sampled=False),
-    Writer("web", "a static WebGL2 player of the whole model (index.html + player.js + splats.bin, or one .html)",
+    Writer("web", "a static WebGL2 player of the whole model (index.html, scripts, splats.bin; or one .html)",
            "OUTDIR|OUT.html", "splatreel.export.web", sampled=False),
 ]
 

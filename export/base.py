@@ -23,7 +23,6 @@ import numpy as np
 
 import torch
 
-from splatreel.colorspace import srgb_to_linear  # noqa: F401  (re-exported for the exporters)
 from splatreel.constants import RADIUS_SIGMAS
 from splatreel.covariance import decompose_covariance_3d
 from splatreel.errors import ModelError, SplatreelError

@@ -35,11 +35,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from splatreel.colorspace import srgb_to_linear
 from splatreel.covariance import covariance_3d
 from splatreel.fileio import atomic_dir
 
 from .base import (Y_UP_FORMATS, ExportError, SplatFrame, box_of, frame_file_name, iter_frames, manifest,
-                   resolve_up_axis, srgb_to_linear, to_y_up)
+                   resolve_up_axis, to_y_up)
 
 MESH_FORMATS: tuple[str, ...] = ("obj", "ply", "glb")
 #: Gaussians are truncated outside this Mahalanobis distance (their 3-sigma ellipsoid).

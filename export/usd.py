@@ -55,9 +55,10 @@ from typing import Sequence
 
 import numpy as np
 
+from splatreel.colorspace import srgb_to_linear
 from splatreel.fileio import atomic_path
 
-from .base import (ExportError, SplatFrame, box_of, iter_frames, live_near, resolve_up_axis, srgb_to_linear,
+from .base import (ExportError, SplatFrame, box_of, iter_frames, live_near, resolve_up_axis,
                    time_step, with_neighbours)
 
 #: The prim kinds ``--what`` chooses from, in authoring order.

@@ -36,9 +36,8 @@ from typing import Any
 import torch
 
 from .cameras import views_to_json
-from .checkpoint_file import (FORMAT_NAME, FORMAT_VERSION, LEGACY_NAME, METADATA_KEY, SUFFIX,  # noqa: F401
-                              check_version, crc32, read_arrays, read_metadata, recorded_views,
-                              views_in_metadata)
+from .checkpoint_file import (FORMAT_NAME, FORMAT_VERSION, METADATA_KEY, check_version, crc32, read_arrays,
+                              read_metadata, recorded_views)
 from .errors import CheckpointError, ModelError
 from .fileio import atomic_write_bytes
 from .model import MODEL_KINDS, Model

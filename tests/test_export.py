@@ -18,11 +18,11 @@ import torch
 from splatreel import quaternion
 from splatreel.checkpoint import save_checkpoint
 from splatreel.cli import main
+from splatreel.colorspace import srgb_to_linear
 from splatreel.constants import RADIUS_SIGMAS
 from splatreel.covariance import covariance_3d, covariance_4d_from_motion, decompose_covariance_4d
 from splatreel.errors import OutputExistsError
 from splatreel.export import ExportError, exporters, frame_times, iter_frames
-from splatreel.export.base import srgb_to_linear
 from splatreel.export.mesh import MeshOptions, write_mesh_sequence
 from splatreel.export.ply import frame_ply_bytes, write_ply_sequence
 from splatreel.export.usd import PRIM_PATHS, UsdOptions, build_usd_stage, write_usd

@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
 
     import torch
 
-    from ..checkpoint import SUFFIX, save_checkpoint
+    from ..checkpoint import save_checkpoint
+    from ..checkpoint_file import SUFFIX
     from ..errors import SplatreelError
     from ..fileio import check_writable
     from ..formats import read_checkpoint

@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()  # a time budget covers the whole command
     from pathlib import Path
 
-    from splatreel.checkpoint import read_metadata
+    from splatreel.checkpoint_file import read_metadata
     from splatreel.errors import SplatreelError
     from splatreel.train.alpha_conflicts import describe
     from splatreel.train.data import load_dataset

@@ -1,4 +1,4 @@
-"""Benchmark of the CPU rasterizer (`splatreel.train.rasterize`) against the dense pure-torch reference.
+"""Benchmark of the CPU rasterizer (`splatreel.rasterize`) against the dense pure-torch reference.
 
     python bench/rasterize.py --json OUT.json
 
@@ -41,7 +41,7 @@ from tqdm import tqdm  # noqa: E402
 from splatreel.cameras import Camera, look_at  # noqa: E402
 from splatreel.covariance import covariance_3d  # noqa: E402
 from splatreel.model import Gaussians3D  # noqa: E402
-from splatreel.train.rasterize import rasterize  # noqa: E402
+from splatreel.rasterize import rasterize  # noqa: E402
 
 
 def make_scene(n: int, sh_degree: int, seed: int = 0) -> dict[str, torch.Tensor]:
@@ -113,7 +113,7 @@ def time_reference(scene, cam, sh_degree: int, repeats: int, chunk_elements: flo
 def compile_times() -> dict[str, float]:
     """Seconds for import + first forward/backward with an empty numba cache (compiles), then with it filled."""
     code = ("import time; t0 = time.perf_counter(); import torch; t1 = time.perf_counter()\n"
-            "from splatreel.train.rasterize import rasterize\n"
+            "from splatreel.rasterize import rasterize\n"
             "from splatreel.model import Gaussians3D; from splatreel.cameras import look_at\n"
             "g = Gaussians3D(means=torch.zeros(1, 3, requires_grad=True), covariances=0.01 * torch.eye(3)[None],"
             " opacities=torch.full((1,), 0.5), sh=torch.zeros(1, 1, 3), visible=torch.ones(1, dtype=torch.bool),"

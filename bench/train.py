@@ -36,7 +36,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
 
     from splatreel.train.evaluate import view_target
     from splatreel.train.losses import dssim, l1
-    from splatreel.train.rasterize import rasterize
+    from splatreel.rasterize import rasterize
     from splatreel.train.trainer import alive_at
 
     cfg, ds = trainer.cfg, trainer.ds

@@ -53,7 +53,7 @@ def measure(model, center, distance, fov, size, frames: int, composite: str, cap
     import torch
 
     from splatreel.cameras import orbit
-    from splatreel.train.rasterize import rasterize
+    from splatreel.rasterize import rasterize
     from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
 
     w, h = size

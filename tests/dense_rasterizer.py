@@ -1,6 +1,6 @@
-"""Slow, dense pure-PyTorch oracle of `splatreel.train.rasterize`: every Gaussian against every pixel.
+"""Slow, dense pure-PyTorch oracle of `splatreel.rasterize`: every Gaussian against every pixel.
 
-Written independently of `train/rasterize.py` (full-matrix EWA projection, a matrix inverse for the conic, the
+Written independently of `splatreel/rasterize.py` (full-matrix EWA projection, a matrix inverse for the conic, the
 whole compositing as a cumulative product over a ``[pixels, N]`` tensor) and differentiable by plain autograd, in
 float64 or float32. Only the reference rules are shared, restated here from the reference rasterizer
 (graphdeco-inria/diff-gaussian-rasterization ``cuda_rasterizer/forward.cu`` and ``auxiliary.h``, as vendored by

@@ -1,4 +1,4 @@
-"""Tests of the differentiable rasterizer (`splatreel.train.rasterize`) against the dense pure-torch oracle."""
+"""Tests of the differentiable rasterizer (`splatreel.rasterize`) against the dense pure-torch oracle."""
 
 from __future__ import annotations
 
@@ -19,9 +19,9 @@ from dense_rasterizer import camera, dense_render, gaussians3d, model4d, scene3d
 from splatreel.cameras import Camera  # noqa: E402
 from splatreel.errors import CameraError, ModelError, SplatreelError  # noqa: E402
 from splatreel.model import Gaussians3D  # noqa: E402
-from splatreel.train.rasterize import RenderOutput, rasterize  # noqa: E402
+from splatreel.rasterize import RenderOutput, rasterize  # noqa: E402
 
-R = importlib.import_module("splatreel.train.rasterize")  # the module, even if the package re-exports `rasterize`
+R = importlib.import_module("splatreel.rasterize")  # the module, even if the package re-exports `rasterize`
 
 BG = (0.2, 0.3, 0.4)
 
@@ -241,7 +241,7 @@ def test_camera_inside_the_gaussians_is_well_defined():
 
 # --- GPU path glue (gsplat), checked on the CPU ------------------------------------------------------------------
 def test_torch_binning_matches_kernel_binning():
-    from splatreel.train import _kernels as K
+    from splatreel import _kernels as K
 
     gen = torch.Generator().manual_seed(29)
     cam = camera(70, 45)
@@ -312,7 +312,7 @@ def test_gsplat_path_matches_cpu_path(monkeypatch):
 
 # --- numba cache location ----------------------------------------------------------------------------------------
 def _cache_dir_in_subprocess(env: dict) -> str:
-    code = "import os, splatreel.train._kernels as K; print(os.environ['NUMBA_CACHE_DIR'], K.CACHE_ENABLED)"
+    code = "import os, splatreel._kernels as K; print(os.environ['NUMBA_CACHE_DIR'], K.CACHE_ENABLED)"
     full_env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
     full_env.update(env)
     res = subprocess.run([sys.executable, "-c", code], env=full_env, capture_output=True, text=True, check=True)

@@ -20,7 +20,7 @@ from splatreel.samples.floor import (FAR_CLIP, FLOOR_SHARE, NUM_CAMERAS, SIDE_DI
 from splatreel.checkpoint import load_checkpoint
 from splatreel.train.data import load_dataset
 from splatreel.train.evaluate import evaluate
-from splatreel.train.rasterize import rasterize
+from splatreel.rasterize import rasterize
 from test_samples import read_rgba
 
 SMALL = FloorConfig(frames=36, size=64, test_views=12)

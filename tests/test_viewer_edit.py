@@ -10,7 +10,7 @@ import torch
 from splatreel.cameras import look_at, orbit
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
 from splatreel.constants import ALPHA_THRESHOLD, NEAR_PLANE
-from splatreel.train.rasterize import project_gaussians
+from splatreel.rasterize import project_gaussians
 from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context, render_image
 from splatreel.viewer.selection import MAX_MARKERS, UNDO_LEVELS, Edits, in_rect, marker_segments
 from splatreel.viewer.sorting import depth_order

@@ -87,7 +87,7 @@ def test_a_rotated_elongated_splat_is_cut_where_the_trainers_projection_says(cap
     """An elongated splat seen with the camera rolled by 30 degrees: the cut follows its 2D covariance from the
     trainer's projection, the screen cap along the major axis (sqrt(lambda_1) px per std-dev) and not along an
     image axis; the sort's box holds every drawn pixel."""
-    from splatreel.train.rasterize import project_gaussians
+    from splatreel.rasterize import project_gaussians
 
     model = elongated_gaussian()
     roll = math.radians(30)

@@ -15,7 +15,7 @@ from splatreel.errors import GLError
 from splatreel.model import KeyframedGaussians
 from splatreel.samples import trained_checkpoint
 from splatreel.train import losses
-from splatreel.train.rasterize import rasterize
+from splatreel.rasterize import rasterize
 from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
 from splatreel.viewer.synthetic import synthetic_model
 

@@ -68,7 +68,7 @@ def reference_order(model, camera, t: float) -> tuple[np.ndarray, np.ndarray]:
     from scipy.special import spence  # Li2(x) = spence(1 - x)
 
     from splatreel.constants import ALPHA_THRESHOLD, MAX_ALPHA, NEAR_PLANE
-    from splatreel.train.rasterize import project_gaussians
+    from splatreel.rasterize import project_gaussians
 
     g = model.slice(t)
     means, covs, o = g.means.double(), g.covariances.double(), g.opacities.double().numpy()

@@ -9,9 +9,9 @@ import torch
 
 from splatreel.datasets import DatasetImage
 from splatreel.model import Model
+from splatreel.rasterize import rasterize
 
 from .losses import psnr, ssim
-from .rasterize import rasterize
 
 LPIPS_NOTE = ("LPIPS not computed: it needs pretrained network weights, which splatreel does not download and "
               "which are not available locally")

@@ -24,6 +24,7 @@ from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
 from splatreel.fileio import atomic_path
 from splatreel.model import Gaussians4D
+from splatreel.rasterize import rasterize
 
 from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
@@ -34,7 +35,6 @@ from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball)
 from .losses import dssim, l1, psnr
-from .rasterize import rasterize
 
 PARAM_NAMES = Gaussians4D.TENSORS
 

@@ -1,7 +1,7 @@
 """Numba CPU kernels of the tile rasterizer: binning, front-to-back compositing and its backward pass.
 
 Everything here works on plain numpy arrays of *rendered* Gaussians (already projected, culled and sorted front to
-back by `splatreel.train.rasterize`); M is their number, n the number of (tile, Gaussian) intersections, and every
+back by `splatreel.rasterize`); M is their number, n the number of (tile, Gaussian) intersections, and every
 float is float32. The math is the reference 3DGS one (graphdeco-inria/diff-gaussian-rasterization
 ``cuda_rasterizer/forward.cu`` ``renderCUDA`` and ``backward.cu``; gsplat ``gsplat/cuda/_torch_impl.py``
 ``_rasterize_to_pixels``):

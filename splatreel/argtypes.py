@@ -68,7 +68,13 @@ def parse_non_negative_count(text: str) -> int:
     return _number(text, lambda v: v >= 0, "a whole number >= 0", int)
 
 
+def parse_fraction(text: str) -> float:
+    """'0.3' -> 0.3; a number from 0 to 1."""
+    return _number(text, lambda v: 0 <= v <= 1, "a number from 0 to 1")
+
+
 positive_number = argtype(parse_positive)
+fraction = argtype(parse_fraction)
 non_negative_number = argtype(parse_non_negative)
 finite_number = argtype(parse_finite)
 count = argtype(parse_count)

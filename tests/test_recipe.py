@@ -51,8 +51,11 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert cfg.preset == "auto" and cfg.minutes == 4.0 and cfg.init == "ball"
     assert cfg.lambda_scale_ratio == 0.0 and cfg.densify.enabled and cfg.densify.budget_curve
     assert cfg.resolution_ramp == ()  # 64 px: nothing to gain from coarser images
+    assert cfg.batch_size == 8 and cfg.static_share == 0.0
+    assert cfg.t_scale_init_frames == preset("efficient4d").t_scale_init_frames
     text = decisions_text(decisions)
     assert "image matrix" in text and "a bounded object" in text and "--minutes" in text
+    assert "8 images per step" in text and "--batch-size" in text
 
 
 def test_one_camera_per_time_over_a_floor(floor):
@@ -60,8 +63,36 @@ def test_one_camera_per_time_over_a_floor(floor):
     assert traits.one_view_per_time and traits.open_backdrop
     cfg, decisions = auto_recipe(traits)
     assert cfg.minutes == 3.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
+    assert cfg.t_scale_init_frames == preset("efficient4d").t_scale_init_frames  # 12 frames: a tenth is less
     text = decisions_text(decisions)
     assert "one camera per time" in text and "floor or backdrop" in text and "--init" in text
+    long_clip, _ = auto_recipe(dataclasses.replace(traits, frames=96, images=96))
+    assert long_clip.t_scale_init_frames == pytest.approx(9.5)  # a tenth of the clip
+    assert long_clip.batch_size == cfg.batch_size == preset("efficient4d").batch_size
+
+
+def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):
+    from splatreel.train.initialize import start_static
+
+    ds = load_dataset(floor)
+    cfg, _ = auto_recipe(read_traits(ds))
+    cfg = dataclasses.replace(cfg.scaled(2), minutes=None, num_gaussians=2000, static_share=0.25)
+    tr = Trainer(ds, cfg, tmp_path / "s.safetensors", progress=False)
+    t0, t1 = ds.time_range
+    model = tr.model().detach()
+    static = torch.isclose(model.log_t_scales.exp(), torch.tensor(t1 - t0))
+    assert abs(int(static.sum()) - 500) <= 1
+    torch.testing.assert_close(model.t_means[static], torch.full((int(static.sum()),), 0.5 * (t0 + t1)))
+    # visible at every time and not moving: the slices at both ends agree on their centres
+    early, late = model.select(static.nonzero()[:, 0]).slice(t0), model.select(static.nonzero()[:, 0]).slice(t1)
+    torch.testing.assert_close(early.means, late.means)
+    assert float(early.opacities.min()) > 0.85 * float(torch.sigmoid(model.opacity_logits).min())
+    raw = {"means": torch.zeros(10, 3), "t_means": torch.zeros(10), "log_t_scales": torch.zeros(10)}
+    assert start_static(raw, 0.0, (0.0, 1.0), torch.Generator()) is raw
+    args = ["train", str(floor), "--out", str(tmp_path / "x.safetensors"), "--static-share", "1.5"]
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    assert exc.value.code == 2 and "expected a number from 0 to 1" in capsys.readouterr().err
 
 
 def test_data_without_alpha_is_an_open_scene(matrix):

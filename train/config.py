@@ -82,6 +82,9 @@ class TrainConfig:
     #: dataset's time units (D = time span), which is 6.7 frames of a 16-frame video in [0, 1] but 1.7 frames
     #: with Efficient4D's integer timestamps 0..15 (the same formula, different units).
     t_scale_init_frames: float | None = None
+    #: Share of the initial Gaussians that start static (temporal std-dev the whole clip, no motion): what does
+    #: not move is then fitted by every view together (`initialize.start_static`); 0: none.
+    static_share: float = 0.0
     #: Final spatial SH degree (0-3) and time degree (0-2); the full preset ramps up to them.
     sh_degree: int = 0
     sh_degree_t: int = 0

@@ -112,6 +112,27 @@ def initial_parameters(points: torch.Tensor, rgb: torch.Tensor, time_range: tupl
     }
 
 
+def start_static(raw: dict[str, torch.Tensor], share: float, time_range: tuple[float, float],
+                 generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """A random `share` of the Gaussians `raw` made static at init: temporal mean at the middle of the clip and
+    temporal std-dev the whole clip (visible at every time with at least 88% of their opacity, and no motion under
+    identity rotations). With one camera per time, a short-lived Gaussian is seen by a handful of cameras and fits
+    each of them on its own; a static one is shared by every camera, so what does not move (a floor, a backdrop)
+    is fitted by all the views together. The optimizer shortens or fades the ones that land on moving parts."""
+    n = raw["means"].shape[0]
+    k = int(round(share * n))
+    if k <= 0:
+        return raw
+    t0, t1 = time_range
+    idx = torch.randperm(n, generator=generator)[:k]
+    out = dict(raw)
+    out["t_means"] = raw["t_means"].clone()
+    out["t_means"][idx] = 0.5 * (t0 + t1)
+    out["log_t_scales"] = raw["log_t_scales"].clone()
+    out["log_t_scales"][idx] = math.log(max(t1 - t0, 1e-6))
+    return out
+
+
 def carve(points: torch.Tensor, times: torch.Tensor, ds: Dataset, min_agreement: float = 0.9) -> torch.Tensor:
     """``[M]`` bool: which space-time candidates (points ``[M,3]`` at times ``[M]``) lie inside the object's visual
     hull: at the training frame nearest to each candidate's time, its projection must fall on the foreground

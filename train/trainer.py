@@ -33,7 +33,7 @@ from .confidence import confidence_maps
 from .data import downscale_view, relative_name
 from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
-                         mesh_points, point_cloud_init, random_ball)
+                         mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import dssim, l1, psnr
 
 PARAM_NAMES = Gaussians4D.TENSORS
@@ -172,6 +172,8 @@ class Trainer:
             t_scale = cfg.t_scale_init_frames * step
         raw = initial_parameters(points, rgb, self.time_range, cfg.sh_degree, cfg.sh_degree_t, self.generator,
                                  t_scale, t_means)
+        if cfg.static_share:
+            raw = start_static(raw, cfg.static_share, self.time_range, self.generator)
         self._make_optimizer(raw)
         self.n_initial = len(raw["means"])
         self._loaded_state = {}

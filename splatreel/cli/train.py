@@ -24,7 +24,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splatreel.argtypes import count, non_negative_count, non_negative_number, positive_number
+    from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
     from splatreel.train.config import PRESETS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
@@ -64,6 +64,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "per time, else 0)")
     p.add_argument("--t-scale-init", type=positive_number, metavar="FRAMES",
                    help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
+    p.add_argument("--static-share", type=fraction, metavar="F",
+                   help="share of the initial Gaussians that start static, shared by every time (default: the "
+                        "recipe's)")
     p.add_argument("--init-mesh", metavar="FILE", help="initialise on the surface of this mesh (4DGen)")
     p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree, 0-3 (default: the preset's; train prints it)")
     p.add_argument("--sh-degree-t", type=int, choices=range(3), help="time (Fourier) SH degree, 0-2 (default: the preset's)")
@@ -107,7 +110,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "static_iters": args.static_iters, "resolution_ramp": args.resolution_ramp,
             "smooth_weight": args.smooth_weight, "batch_size": args.batch_size,
             "checkpoint_every": args.checkpoint_every, "device": args.device,
-            "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init}
+            "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init,
+            "static_share": args.static_share}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:

@@ -1,8 +1,10 @@
 """Mesh export against the procedural samples' true surfaces: per-frame meshes and one deforming mesh.
 
     python bench/mesh.py [--json OUT.json] [--samples spinner,wave,morph,texture] [--frames 12] [--resolution 64]
+                         [--methods per-frame,fused,deforming]
 
-For each sample's exact model (`splatreel.samples.build_model`, 20k Gaussians) and each method: the two-way Chamfer
+For each sample's exact model (`splatreel.samples.build_model`, 20k Gaussians) and each method (per-frame density
+iso-surfaces, per-frame surfaces fused from rendered depth, the deforming mesh): the two-way Chamfer
 distance to the true surface (mean of both directions' mean nearest distances over 5k surface samples and the mesh's
 vertices, as a share of the object's size; mean over frames and worst frame), normal consistency (mean |n · n_true|
 of each mesh vertex against its nearest true sample's face normal), vertices, pieces and seconds. For the deforming
@@ -44,7 +46,10 @@ def slide(meshes, name: str, times, ref: int) -> float:
     return max(material_slide([m.vertices for m in meshes], name, times, ref))
 
 
-def run(samples: list[str], frames: int, resolution: int) -> list[dict]:
+METHODS = ("per-frame", "fused", "deforming")
+
+
+def run(samples: list[str], frames: int, resolution: int, methods=METHODS) -> list[dict]:
     import trimesh
 
     from splatreel.export import frame_times
@@ -55,12 +60,13 @@ def run(samples: list[str], frames: int, resolution: int) -> list[dict]:
     for name in samples:
         model = build_model(name, num_gaussians=20000)
         times = frame_times(model.time_range, frames)
-        for method in ("per-frame", "deforming"):
+        for method in methods:
             with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 start = time.perf_counter()
                 paths = write_mesh_sequence(model, Path(tmp) / "m", times, MeshOptions(
-                    resolution=resolution, usd=False, deforming=method == "deforming"))
+                    resolution=resolution, usd=False, deforming=method.startswith("deforming"),
+                    surface="fused" if "fused" in method else "density"))
                 seconds = time.perf_counter() - start
                 meshes = [trimesh.load(p, process=False) for p in paths[:frames]]
                 metrics = [surface_metrics(m, name, float(t)) for m, t in zip(meshes, times)]
@@ -71,7 +77,7 @@ def run(samples: list[str], frames: int, resolution: int) -> list[dict]:
                        "vertices": int(np.mean([len(m.vertices) for m in meshes])),
                        "pieces": int(max(len(m.split(only_watertight=False)) for m in meshes)),
                        "seconds": round(seconds, 1)}
-                if method == "deforming":
+                if method.startswith("deforming"):
                     ref = json.loads(paths[-1].read_text())["deforming"]["reference_frame"]
                     row["slide_worst"] = round(slide(meshes, name, times, ref), 4)
                 rows.append(row)
@@ -84,8 +90,10 @@ def main() -> None:
     p.add_argument("--samples", default="spinner,wave,morph,texture")
     p.add_argument("--frames", type=int, default=12)
     p.add_argument("--resolution", type=int, default=64)
+    p.add_argument("--methods", default=",".join(METHODS),
+                   help="per-frame (density iso-surface), fused (TSDF of rendered depth), deforming, deforming-fused")
     args = p.parse_args()
-    rows = run(args.samples.split(","), args.frames, args.resolution)
+    rows = run(args.samples.split(","), args.frames, args.resolution, args.methods.split(","))
     print(f"{'sample':<9}{'method':<11}{'chamfer':>9}{'worst':>8}{'normals':>9}{'verts':>7}{'pieces':>7}"
           f"{'slide':>7}{'s':>7}")
     for r in rows:

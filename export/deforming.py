@@ -202,7 +202,7 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
     ref = reference_frame(model, times) if reference is None else int(reference)
     frames = list(iter_frames(model, times, progress, desc="mesh frames"))
     base = frame_mesh(frames[ref], grid, options.iso, options.color_neighbors, options.fill,
-                      options.min_piece_share)
+                      options.min_piece_share, options.surface)
     if not len(base.faces):
         return [base for _ in times], {"reference_frame": ref, "reference_time": times[ref], "frames": []}
     dilation = (DILATION_VOXELS * grid.voxel) ** 2
@@ -219,7 +219,7 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
                 moved = rigid_carry(carried, start.means.astype(np.float64)[idx], end.means.astype(np.float64)[idx], w)
                 carried = carried + smooth(moved - carried, neighbours)
             surfaces[i] = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
-                                     options.min_piece_share)
+                                     options.min_piece_share, options.surface)
             offset = onto_surface(carried, surfaces[i]) - carried  # smoothed below: no vertex jumps alone
             vertices[i] = relax(carried + smooth(offset, neighbours), base.faces, neighbours)
     meshes = []
@@ -242,7 +242,7 @@ def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]
     measured = []
     for i in sorted(set(np.linspace(0, len(frames) - 1, min(DRIFT_FRAMES, len(frames))).round().astype(int))):
         truth = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
-                                     options.min_piece_share)
+                                     options.min_piece_share, options.surface)
         measured.append({"frame": int(i), "time": float(times[i]),
                          "drift": mean_surface_distance(meshes[i].vertices, truth.vertices) / diagonal,
                          "pieces": pieces(truth) if len(truth.faces) else 0})

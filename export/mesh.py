@@ -43,6 +43,7 @@ from .base import (Y_UP_FORMATS, ExportError, SplatFrame, box_of, frame_file_nam
                    resolve_up_axis, to_y_up)
 
 MESH_FORMATS: tuple[str, ...] = ("obj", "ply", "glb")
+SURFACES: tuple[str, ...] = ("density", "fused")
 #: Gaussians are truncated outside this Mahalanobis distance (their 3-sigma ellipsoid).
 TRUNCATION_SIGMAS = 3.0
 #: Every Gaussian's std-dev is widened (in quadrature) by this many voxels before sampling (see module doc).
@@ -81,6 +82,9 @@ class MeshOptions:
     min_piece_share: float = 0.02
     #: with `deforming`: UVs (an xatlas atlas) and ``texture.png`` baked from the vertex colours, on the USD mesh
     uv: bool = False
+    #: 'density' (the iso-surface of the Gaussians' density) or 'fused' (depth rendered from many views, fused into
+    #: a TSDF: `splatreel.export.fused`)
+    surface: str = "density"
 
     def __post_init__(self) -> None:
         if self.format not in MESH_FORMATS:
@@ -89,6 +93,8 @@ class MeshOptions:
             raise ExportError(f"--resolution must be 8..1024, got {self.resolution}")
         if not (np.isfinite(self.iso) and self.iso > 0):
             raise ExportError(f"--iso must be a positive number, got {self.iso}")
+        if self.surface not in SURFACES:
+            raise ExportError(f"--surface must be one of {', '.join(SURFACES)}, got {self.surface!r}")
         if self.uv and not self.deforming:
             raise ExportError("--uv lays out the one topology --deforming keeps; add --deforming")
         if self.color_neighbors < 1:
@@ -275,8 +281,8 @@ def largest_pieces(vertices: np.ndarray, faces: np.ndarray, min_share: float) ->
 
 
 def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors: int = 8,
-               fill: bool = True, min_piece_share: float = 0.0) -> FrameMesh:
-    """The surface of one frame on `grid` (see module doc)."""
+               fill: bool = True, min_piece_share: float = 0.0, surface: str = "density") -> FrameMesh:
+    """The surface of one frame on `grid` (see module doc; `surface` 'fused': `splatreel.export.fused`)."""
     import trimesh
 
     live = frame.opacities > 0
@@ -285,6 +291,10 @@ def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors:
     inv = inverse_covariances(frame.scales[live], frame.quats[live], dilation)
     radii = np.sqrt(np.square(frame.radii[live].astype(np.float64)) + TRUNCATION_SIGMAS ** 2 * dilation)
     field = density_field(grid, means, inv, frame.opacities[live], radii)
+    if surface == "fused":
+        from .fused import fused_mesh
+
+        return fused_mesh(frame, grid, field, min_piece_share)
     if fill:
         field = fill_cavities(field, iso)
     vertices, faces = largest_pieces(*extract_surface(field, grid, iso), min_piece_share)
@@ -397,7 +407,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             meshes = with_atlas(meshes, layout)
     else:
         meshes = (frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill,
-                             options.min_piece_share)
+                             options.min_piece_share, options.surface)
                   for frame in iter_frames(model, times, progress, desc="mesh"))
     with atomic_dir(outdir, force) as tmp:
         for index, mesh in enumerate(meshes):
@@ -443,10 +453,17 @@ def add_args(p: argparse.ArgumentParser) -> None:
     """The format's own options of ``splatreel export mesh`` (its entry in `splatreel.formats`)."""
     from splatreel.argtypes import count, finite_number, positive_number
 
+    from .fused import FUSION_VIEWS
+
     p.add_argument("--format", choices=MESH_FORMATS, default="ply", help="per-frame mesh format (default ply)")
     p.add_argument("--resolution", type=count, default=128,
                    help="voxels along the longest side of the grid shared by all frames (default 128)")
-    p.add_argument("--iso", type=positive_number, default=0.5, help="density level of the surface (default 0.5)")
+    p.add_argument("--surface", choices=SURFACES, default="density",
+                   help="density: the iso-surface of the Gaussians' density; fused: depth rendered from "
+                        f"{FUSION_VIEWS} views around the model, fused into a signed distance field (slower; "
+                        "closer to what the renders show) (default density)")
+    p.add_argument("--iso", type=positive_number, default=0.5,
+                   help="density level of the surface, with --surface density (default 0.5)")
     p.add_argument("--no-fill", action="store_true",
                    help="keep cavities enclosed by the surface empty (default: fill them, one surface per solid)")
     p.add_argument("--color-neighbors", type=count, default=8,
@@ -476,7 +493,7 @@ def run(model, times, out, args) -> list[Path]:
                           up_axis=resolve_up_axis(args.up_axis, getattr(args, "provenance", None)),
                           meters_per_unit=args.meters_per_unit, deforming=args.deforming,
                           min_piece_share=0.0 if args.keep_all_pieces else MeshOptions.min_piece_share,
-                          reference_time=args.reference_time, uv=args.uv)
+                          reference_time=args.reference_time, uv=args.uv, surface=args.surface)
     if args.reference_time is not None and not args.deforming:
         raise ExportError("--reference-time picks the surface --deforming carries; add --deforming")
     return write_mesh_sequence(model, out, times, options, force=args.force, progress=args.progress)

@@ -22,6 +22,20 @@ def true_surface(name: str, t: float):
     return mesh, float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
 
 
+def chamfer(vertices: np.ndarray, name: str, t: float, samples: int = 5000) -> float:
+    """Two-way Chamfer distance between a mesh's `vertices` and the sample's true surface at `t`: the mean of both
+    directions' mean nearest distances (the vertices against `samples` points spread evenly over the true surface),
+    as a share of the object's size."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    truth, size = true_surface(name, t)
+    points, _ = trimesh.sample.sample_surface_even(truth, samples, seed=0)
+    there = float(cKDTree(points).query(vertices)[0].mean())
+    back = float(cKDTree(vertices).query(points)[0].mean())
+    return 0.5 * (there + back) / size
+
+
 def material_slide(vertices: Sequence[np.ndarray], name: str, times: Sequence[float], reference: int,
                    samples: int = 100000) -> list[float]:
     """Per time, the mean distance (share of the object's size) between each vertex of a deforming mesh and the

@@ -17,6 +17,9 @@ from splatreel.export.usd import PRIM_PATHS
 
 from test_export import BUNDLED_MESH_ATOL, TIMES, VELOCITY, _np, ball, frames, mesh_dir  # noqa: F401  (fixtures)
 
+#: Chamfer distance (share of the object's size) within which the fused surface of the spinner's exact model lies
+FUSED_BOUND = 0.015
+
 # --- meshes --------------------------------------------------------------------------------------------------
 
 def test_density_field_matches_the_dense_reference(frames):
@@ -72,6 +75,27 @@ def test_meshes_of_a_procedural_sample_follow_its_known_motion(tmp_path):
         centres.append(m.bounds.mean(0))
     assert np.ptp(volumes) < 0.05 * np.mean(volumes)  # rigid: the (filled) volume does not change
     assert np.linalg.norm(centres[-1] - centres[0]) > 0.4  # and it did travel
+
+
+def test_fused_surfaces_lie_closer_to_the_truth_than_the_density_iso_surface(tmp_path):
+    import trimesh
+
+    from splatreel.samples import build_model
+    from splatreel.samples.truth import chamfer
+
+    model = build_model("spinner", num_gaussians=6000, frames=5)
+    times = frame_times(model.time_range, 2)
+    distances = {}
+    for surface in ("density", "fused"):
+        paths = write_mesh_sequence(model, tmp_path / surface, times, MeshOptions(resolution=48, usd=False,
+                                                                                   surface=surface))
+        meshes = [trimesh.load(p) for p in paths[:len(times)]]
+        assert all(m.is_watertight and m.volume > 0 for m in meshes)
+        distances[surface] = [chamfer(m.vertices, "spinner", float(t)) for m, t in zip(meshes, times)]
+        colors = np.concatenate([m.visual.vertex_colors[:, :3] for m in meshes]).astype(float) / 255
+        assert colors.std(0).max() > 0.1  # the faces' colours, not one grey
+    assert max(distances["fused"]) < 0.8 * min(distances["density"]), distances
+    assert max(distances["fused"]) < FUSED_BOUND, distances
 
 
 def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_object(tmp_path, capsys):

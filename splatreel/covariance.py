@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from . import quaternion
-from .constants import ROTATION_CONVENTIONS, TEMPORAL_CULL, TEMPORAL_FADES  # noqa: F401 (re-exported)
+from .constants import TEMPORAL_CULL, TEMPORAL_FADES
 
 RotationConvention = Literal["current", "legacy"]
 #: Other names found in the wild for the same conventions.

@@ -500,7 +500,8 @@ def test_smooth_temporal_fade_fades_to_zero_at_the_cull_and_leaves_the_rest(tmp_
     """One Gaussian with a short time window (var_t 0.01: marginal exp(-t^2 / 0.02)), seen head-on at several
     times: with the smooth fade its alpha is the cut one's times smoothstep(0.05, 0.1, marginal)
     (`covariance.temporal_factor`), the same from a marginal of 0.1 up, and 0 from the cull on, like the cut."""
-    from splatreel.covariance import TEMPORAL_FADES, temporal_factor, temporal_marginal
+    from splatreel.constants import TEMPORAL_FADES
+    from splatreel.covariance import temporal_factor, temporal_marginal
 
     from test_viewer_sort import gaussians_from_motion
 

@@ -65,7 +65,7 @@ class RenderSettings:
             see `Footprint`.
         max_screen_radius: cap on a splat's radius as a share of the image height (None = none).
         near_plane: Gaussians at or in front of this camera depth are not drawn (the trainer's NEAR_PLANE, 0.2).
-        temporal_fade: one of `splatreel.covariance.TEMPORAL_FADES`: "cut" (the reference: a Gaussian drops out once
+        temporal_fade: one of `splatreel.constants.TEMPORAL_FADES`: "cut" (the reference: a Gaussian drops out once
             its temporal marginal falls to 0.05) or "smooth" (faded out over the marginal's last doubling, so that
             nothing pops as time plays).
     """

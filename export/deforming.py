@@ -226,12 +226,14 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
     for i in range(len(frames)):
         normals = np.asarray(trimesh.Trimesh(vertices[i], base.faces, process=False).vertex_normals, np.float64)
         meshes.append(replace(base, vertices=vertices[i], normals=normals))
-    return meshes, drift_report(meshes, frames, grid, options, ref, times)
+    return meshes, drift_report(meshes, frames, grid, options, ref, times, {**surfaces, ref: base})
 
 
-def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]) -> dict:
+def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float],
+                 surfaces: dict | None = None) -> dict:
     """How far the deformed surface is from the surface extracted at up to `DRIFT_FRAMES` frames (see module doc);
-    warns (one line) where it drifts past `DRIFT_WARNING` or the pieces change."""
+    warns (one line) where it drifts past `DRIFT_WARNING` or the pieces change. `surfaces` holds frames' surfaces
+    already extracted (by frame index), which are not extracted again."""
     import trimesh
 
     from .surface import frame_mesh
@@ -241,8 +243,8 @@ def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float]
     base_pieces = pieces(meshes[ref])
     measured = []
     for i in sorted(set(np.linspace(0, len(frames) - 1, min(DRIFT_FRAMES, len(frames))).round().astype(int))):
-        truth = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
-                                     options.min_piece_share, options.surface)
+        truth = (surfaces or {}).get(i) or frame_mesh(frames[i], grid, options.iso, options.color_neighbors,
+                                                      options.fill, options.min_piece_share, options.surface)
         measured.append({"frame": int(i), "time": float(times[i]),
                          "drift": mean_surface_distance(meshes[i].vertices, truth.vertices) / diagonal,
                          "pieces": pieces(truth) if len(truth.faces) else 0})

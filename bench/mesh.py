@@ -94,10 +94,10 @@ def main() -> None:
                    help="per-frame (density iso-surface), fused (TSDF of rendered depth), deforming, deforming-fused")
     args = p.parse_args()
     rows = run(args.samples.split(","), args.frames, args.resolution, args.methods.split(","))
-    print(f"{'sample':<9}{'method':<11}{'chamfer':>9}{'worst':>8}{'normals':>9}{'verts':>7}{'pieces':>7}"
+    print(f"{'sample':<9}{'method':<17}{'chamfer':>9}{'worst':>8}{'normals':>9}{'verts':>7}{'pieces':>7}"
           f"{'slide':>7}{'s':>7}")
     for r in rows:
-        print(f"{r['sample']:<9}{r['method']:<11}{r['chamfer_mean']:>9.4f}{r['chamfer_worst']:>8.4f}"
+        print(f"{r['sample']:<9}{r['method']:<17}{r['chamfer_mean']:>9.4f}{r['chamfer_worst']:>8.4f}"
               f"{r['normal_consistency']:>9.3f}{r['vertices']:>7}{r['pieces']:>7}"
               f"{r.get('slide_worst', float('nan')):>7.3f}{r['seconds']:>7.1f}")
     if args.json:

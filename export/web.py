@@ -191,13 +191,14 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
 
 
 def _asset(name: str) -> str:
-    """A file of the player; ``shaders.js`` gets the desktop renderer's footprint code in its vertex shader (one copy
-    of the EWA projection in GLSL: shaders/splat_footprint.glsl)."""
+    """A file of the player; ``shaders.js`` gets the desktop renderer's footprint code in its vertex shader and its
+    splat alpha in its fragment shader (one copy of each in GLSL: shaders/splat_footprint.glsl, splat_alpha.glsl)."""
     text = resources.files("splatreel.export").joinpath("web_player", name).read_text(encoding="utf-8")
     if name == "shaders.js":
         from splatreel.gl import shader_source
 
-        text = text.replace("/*SPLAT_FOOTPRINT*/", shader_source("splat_footprint").replace("`", "'"))
+        for part in ("splat_footprint", "splat_alpha"):
+            text = text.replace(f"/*{part.upper()}*/", shader_source(part).replace("`", "'"))
     return text
 
 

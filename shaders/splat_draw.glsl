@@ -113,6 +113,8 @@ flat in float v_radius2;
 
 out vec4 f_color;
 
+#include "splat_alpha.glsl"
+
 void main() {
     vec2 pixel = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);  // pixel centre, y down
 #ifdef SPLAT_POINTS
@@ -135,10 +137,8 @@ void main() {
         return;
     }
 #endif
-    bool inside = all(greaterThanEqual(pixel, v_rect.xy)) && all(lessThan(pixel, v_rect.zw));
-    float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
     // past the radius the fragment adds exactly nothing (cheaper than discard on software rasterizers)
-    alpha = (r2 > v_radius2 || !inside) ? 0.0 : alpha;
+    float alpha = splat_alpha(v_color.a, r2, v_radius2, pixel, v_rect);
     f_color = vec4(v_color.rgb * alpha, alpha);
 }
 

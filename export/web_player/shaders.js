@@ -173,12 +173,11 @@ flat in vec4 v_color;
 flat in vec4 v_rect;
 flat in float v_radius2;
 out vec4 f_color;
+/*SPLAT_ALPHA*/
 void main() {
   vec2 pixel = vec2(gl_FragCoord.x, u_height - gl_FragCoord.y);  // pixel centre, y down
-  float r2 = dot(v_uv, v_uv);
-  bool inside = all(greaterThanEqual(pixel, v_rect.xy)) && all(lessThan(pixel, v_rect.zw));
-  if (r2 > v_radius2 || !inside) discard;
-  float alpha = min(MAX_ALPHA, v_color.a * exp(-0.5 * r2));
+  float alpha = splat_alpha(v_color.a, dot(v_uv, v_uv), v_radius2, pixel, v_rect);
+  if (alpha == 0.0) discard;  // adds nothing; a GPU skips the blend
   f_color = vec4(v_color.rgb * alpha, alpha);
 }
 `;

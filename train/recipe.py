@@ -26,7 +26,7 @@ GENERATED_LAYOUTS = ("efficient4d", "sv4d")
 #: or backdrop rather than a bounded object.
 OPEN_BORDER_SHARE = 0.25
 #: With one camera per time, the initial temporal std-dev as a share of the clip's frames.
-CLIP_SHARE_PER_VIEW = 0.1
+TEMPORAL_STD_CLIP_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
                                   "any depth and stretch into a needle", "--scale-ratio-weight"))
         # measured on the floor sample (96 frames, 3 minutes): sqrt(3) frames 21.0 dB held out, 10 frames 21.3,
         # 43 frames (the official sqrt(D/5)) 20.3; a share of static Gaussians at init: 0.3 20.9, 0.6 20.1
-        t_scale = max(cfg.t_scale_init_frames or 0.0, CLIP_SHARE_PER_VIEW * (traits.frames - 1))
+        t_scale = max(cfg.t_scale_init_frames or 0.0, TEMPORAL_STD_CLIP_SHARE * (traits.frames - 1))
         changes.update(t_scale_init_frames=t_scale)
         decisions.append(Decision(f"temporal std-dev {t_scale:.1f} frames at init",
                                   "a tenth of the clip: each Gaussian starts seen by several cameras, not only "

@@ -28,6 +28,7 @@ import numpy as np
 from splatreel.constants import TEMPORAL_CULL
 
 from .base import iter_frames
+from .surface import vertex_normals
 
 #: Gaussians that carry each vertex
 CARRIERS = 16
@@ -43,9 +44,9 @@ DRIFT_FRAMES = 8
 DRIFT_WARNING = 0.02
 
 
-def reference_frame(model, times: Sequence[float]) -> int:
-    """Index of the frame whose Gaussians show the most opacity in total (the most surface to extract)."""
-    return int(np.argmax([float(f.opacities.sum()) for f in iter_frames(model, times)]))
+def reference_frame(frames: Sequence) -> int:
+    """Index of the `SplatFrame` whose Gaussians show the most opacity in total (the most surface to extract)."""
+    return int(np.argmax([float(f.opacities.sum()) for f in frames]))
 
 
 def carriers(vertices: np.ndarray, frame, dilation: float, k: int = CARRIERS) -> tuple[np.ndarray, np.ndarray]:
@@ -155,17 +156,10 @@ def smooth(displacement: np.ndarray, neighbours, steps: int = SMOOTHING_STEPS) -
     return displacement
 
 
-def unit_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``[V, 3]`` area-weighted unit vertex normals."""
-    import trimesh
-
-    return np.asarray(trimesh.Trimesh(vertices, faces, process=False).vertex_normals, np.float64)
-
-
 def relax(vertices: np.ndarray, faces: np.ndarray, neighbours, steps: int = RELAX_STEPS) -> np.ndarray:
     """Even out the vertex spacing without changing the shape: Laplacian steps with their normal part removed."""
     for _ in range(steps):
-        normals = unit_normals(vertices, faces)
+        normals = vertex_normals(vertices, faces)
         pull = neighbours @ vertices - vertices
         vertices = vertices + 0.5 * (pull - (pull * normals).sum(1, keepdims=True) * normals)
     return vertices
@@ -194,13 +188,11 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
                      progress: bool = False) -> tuple[list, dict]:
     """(one `FrameMesh` per time, all with the reference frame's faces; the drift report) of `model` on `grid`
     (`splatreel.export.mesh.MeshOptions` `options`: iso, fill, colour neighbours)."""
-    import trimesh
-
     from .surface import DILATION_VOXELS, frame_mesh
 
     times = [float(t) for t in times]
-    ref = reference_frame(model, times) if reference is None else int(reference)
     frames = list(iter_frames(model, times, progress, desc="mesh frames"))
+    ref = reference_frame(frames) if reference is None else int(reference)
     base = frame_mesh(frames[ref], grid, options.iso, options.color_neighbors, options.fill,
                       options.min_piece_share, options.surface)
     if not len(base.faces):
@@ -222,10 +214,8 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
                                      options.min_piece_share, options.surface)
             offset = onto_surface(carried, surfaces[i]) - carried  # smoothed below: no vertex jumps alone
             vertices[i] = relax(carried + smooth(offset, neighbours), base.faces, neighbours)
-    meshes = []
-    for i in range(len(frames)):
-        normals = np.asarray(trimesh.Trimesh(vertices[i], base.faces, process=False).vertex_normals, np.float64)
-        meshes.append(replace(base, vertices=vertices[i], normals=normals))
+    meshes = [replace(base, vertices=vertices[i], normals=vertex_normals(vertices[i], base.faces))
+              for i in range(len(frames))]
     return meshes, drift_report(meshes, frames, grid, options, ref, times, {**surfaces, ref: base})
 
 

@@ -44,9 +44,9 @@ def test_one_topology_follows_the_true_surface_as_closely_as_per_frame_meshes(na
     assert np.linalg.norm(meshes[-1].vertices.mean(0) - meshes[0].vertices.mean(0)) > 0.05 or name == "wave"
     errors = [surface_error(p, name, float(t)) for p, t in zip(deforming[:FRAMES], times)]
     reference = [surface_error(p, name, float(t)) for p, t in zip(per_frame[:FRAMES], times)]
-    # within 2 % of the object's size of the truth at every time, and no more than 0.5 % worse than re-meshing
-    # every frame (whose iso-surface itself sits ~2 % outside the true one)
-    assert max(errors) < 0.04 and max(e - r for e, r in zip(errors, reference)) < 0.005, (errors, reference)
+    # within 2 % of the object's size of the truth at every time (the fused surfaces; measured 1.6 % spinner, 1.2 %
+    # wave), and no more than 0.8 % worse than re-meshing every frame (measured 0.5 %, 0.05 %)
+    assert max(errors) < 0.02 and max(e - r for e, r in zip(errors, reference)) < 0.008, (errors, reference)
     manifest = json.loads(deforming[-1].read_text())
     assert manifest["topology"] == "constant (deforming)" and manifest["deforming"]["max_drift"] < 0.02
     # USD: one Mesh, faces authored once (no time samples), points time-sampled at every frame
@@ -136,8 +136,9 @@ def test_vertices_stay_on_their_material_points(name, bound, tmp_path):
     """Correspondence, not only shape: each vertex of the reference frame is pinned to the point of the true surface
     it lies on (barycentric in the sample's own triangle, whose topology is fixed); at every frame the deformed vertex
     must stay near that material point as the object turns or bends. Carrying by local rigid motions in sub-steps
-    shorter than the Gaussians' lives keeps it within `bound` of the object's size (the iso-surface's own offset is
-    about 0.025); moving vertices by their carriers' mean displacement over whole frame steps slid them up to 0.23."""
+    shorter than the Gaussians' lives keeps it within `bound` of the object's size (measured on fused surfaces: 0.061
+    spinner, 0.029 wave); moving vertices by their carriers' mean displacement over whole frame steps slid them up to
+    0.23."""
     import trimesh
 
     from splatreel.samples.truth import material_slide

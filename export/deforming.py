@@ -1,7 +1,7 @@
 """One mesh that deforms over time (``export mesh --deforming``): one topology for every frame, so DCC tools see one
 object whose vertices move (motion blur, UVs and simulation on top) instead of a new object each frame.
 
-The surface is extracted once (`splatreel.export.surface.frame_mesh`) at the reference frame, by default the frame
+The surface is extracted once (`splatreel.export.mesh.frame_mesh`) at the reference frame, by default the frame
 whose Gaussians show the most opacity. Each vertex is then carried by the Gaussians around it, one frame step at a
 time away from the reference (both ways): its `CARRIERS` nearest live Gaussians at the frame the step starts from,
 weighted by their opacity-weighted density at the vertex (as the vertex colours are), move it by the weighted mean
@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -184,17 +184,16 @@ def mean_surface_distance(a: np.ndarray, b: np.ndarray) -> float:
     return 0.5 * (float(cKDTree(b).query(a)[0].mean()) + float(cKDTree(a).query(b)[0].mean()))
 
 
-def deforming_meshes(model, times: Sequence[float], grid, options, reference: int | None = None,
+def deforming_meshes(model, times: Sequence[float], grid, surface_of: Callable, reference: int | None = None,
                      progress: bool = False) -> tuple[list, dict]:
-    """(one `FrameMesh` per time, all with the reference frame's faces; the drift report) of `model` on `grid`
-    (`splatreel.export.mesh.MeshOptions` `options`: iso, fill, colour neighbours)."""
-    from .surface import DILATION_VOXELS, frame_mesh
+    """(one `FrameMesh` per time, all with the reference frame's faces; the drift report) of `model` on `grid`;
+    `surface_of(frame)` extracts a `SplatFrame`'s own surface (`splatreel.export.mesh.frame_mesh`)."""
+    from .surface import DILATION_VOXELS
 
     times = [float(t) for t in times]
     frames = list(iter_frames(model, times, progress, desc="mesh frames"))
     ref = reference_frame(frames) if reference is None else int(reference)
-    base = frame_mesh(frames[ref], grid, options.iso, options.color_neighbors, options.fill,
-                      options.min_piece_share, options.surface)
+    base = surface_of(frames[ref])
     if not len(base.faces):
         return [base for _ in times], {"reference_frame": ref, "reference_time": times[ref], "frames": []}
     dilation = (DILATION_VOXELS * grid.voxel) ** 2
@@ -210,31 +209,27 @@ def deforming_meshes(model, times: Sequence[float], grid, options, reference: in
                 idx, w = carriers(carried, start, dilation)
                 moved = rigid_carry(carried, start.means.astype(np.float64)[idx], end.means.astype(np.float64)[idx], w)
                 carried = carried + smooth(moved - carried, neighbours)
-            surfaces[i] = frame_mesh(frames[i], grid, options.iso, options.color_neighbors, options.fill,
-                                     options.min_piece_share, options.surface)
+            surfaces[i] = surface_of(frames[i])
             offset = onto_surface(carried, surfaces[i]) - carried  # smoothed below: no vertex jumps alone
             vertices[i] = relax(carried + smooth(offset, neighbours), base.faces, neighbours)
     meshes = [replace(base, vertices=vertices[i], normals=vertex_normals(vertices[i], base.faces))
               for i in range(len(frames))]
-    return meshes, drift_report(meshes, frames, grid, options, ref, times, {**surfaces, ref: base})
+    return meshes, drift_report(meshes, frames, grid, surface_of, ref, times, {**surfaces, ref: base})
 
 
-def drift_report(meshes, frames, grid, options, ref: int, times: Sequence[float],
+def drift_report(meshes, frames, grid, surface_of: Callable, ref: int, times: Sequence[float],
                  surfaces: dict | None = None) -> dict:
-    """How far the deformed surface is from the surface extracted at up to `DRIFT_FRAMES` frames (see module doc);
-    warns (one line) where it drifts past `DRIFT_WARNING` or the pieces change. `surfaces` holds frames' surfaces
-    already extracted (by frame index), which are not extracted again."""
+    """How far the deformed surface is from the surface (`surface_of(frame)`) extracted at up to `DRIFT_FRAMES`
+    frames (see module doc); warns (one line) where it drifts past `DRIFT_WARNING` or the pieces change. `surfaces`
+    holds frames' surfaces already extracted (by frame index), which are not extracted again."""
     import trimesh
-
-    from .surface import frame_mesh
 
     diagonal = float(np.linalg.norm(np.asarray(grid.shape) * grid.voxel))
     pieces = lambda m: len(trimesh.Trimesh(m.vertices, m.faces, process=False).split(only_watertight=False))  # noqa
     base_pieces = pieces(meshes[ref])
     measured = []
     for i in sorted(set(np.linspace(0, len(frames) - 1, min(DRIFT_FRAMES, len(frames))).round().astype(int))):
-        truth = (surfaces or {}).get(i) or frame_mesh(frames[i], grid, options.iso, options.color_neighbors,
-                                                      options.fill, options.min_piece_share, options.surface)
+        truth = (surfaces or {}).get(i) or surface_of(frames[i])
         measured.append({"frame": int(i), "time": float(times[i]),
                          "drift": mean_surface_distance(meshes[i].vertices, truth.vertices) / diagonal,
                          "pieces": pieces(truth) if len(truth.faces) else 0})

@@ -92,6 +92,17 @@ def grid_length(grid, share: float) -> float:
     return share * grid.side()
 
 
+def fused_mesh(frame, grid, fill: bool = True, min_piece_share: float = 0.0):
+    """The fused surface (`splatreel.export.surface.FrameMesh`) of one exported frame on `grid` (module doc)."""
+    from .surface import FrameMesh, empty_mesh, extract_surface, largest_pieces, vertex_normals
+
+    sdf, colors, held = fuse_frame(frame, grid, fill)
+    vertices, faces = largest_pieces(*extract_surface(-sdf, grid, 0.0), min_piece_share)
+    if faces.shape[0] == 0:
+        return empty_mesh()
+    return FrameMesh(vertices, faces, vertex_normals(vertices, faces), sample_colors(colors, held, grid, vertices))
+
+
 def fuse_frame(frame, grid, fill: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`fuse` of one exported frame (`splatreel.export.SplatFrame`) from `fusion_cameras` around `grid`, over the
     voxels near the support of its Gaussians (`support`)."""

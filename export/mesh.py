@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Sequence
 
@@ -23,7 +24,7 @@ from splatreel.fileio import atomic_dir
 
 from .base import (Y_UP_FORMATS, ExportError, box_of, frame_file_name, iter_frames, manifest, resolve_up_axis,
                    slice_frame, to_y_up)
-from .surface import DILATION_VOXELS, FrameMesh, Grid, frame_mesh, grid_for_box
+from .surface import DILATION_VOXELS, FrameMesh, Grid, density_mesh, grid_for_box
 
 MESH_FORMATS: tuple[str, ...] = ("obj", "ply", "glb")
 SURFACES: tuple[str, ...] = ("density", "fused")
@@ -144,6 +145,15 @@ class _UsdMeshSequence:
         _author(m.GetExtentAttr(), _vec3f(box_of(mesh.vertices, 0.0)), index)
 
 
+def frame_mesh(frame, grid: Grid, options: MeshOptions) -> FrameMesh:
+    """The surface (`options.surface`) of one exported frame (`splatreel.export.SplatFrame`) on `grid`."""
+    if options.surface == "fused":
+        from .fused import fused_mesh
+
+        return fused_mesh(frame, grid, options.fill, options.min_piece_share)
+    return density_mesh(frame, grid, options.iso, options.color_neighbors, options.fill, options.min_piece_share)
+
+
 def sequence_grid(model, times: Sequence[float], resolution: int, progress: bool = False) -> Grid:
     """The one grid for every frame: the box of every visible Gaussian's 3-sigma support over `times`."""
     if model.kind == "gaussians4d":
@@ -180,7 +190,8 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
 
         reference = None if options.reference_time is None else \
             int(np.argmin(np.abs(np.asarray(times, np.float64) - options.reference_time)))
-        meshes, drift = deforming_meshes(model, times, grid, options, reference, progress)
+        meshes, drift = deforming_meshes(model, times, grid, partial(frame_mesh, grid=grid, options=options),
+                                         reference, progress)
         layout = None
         if options.uv and len(meshes[0].faces):
             from .uv import atlas, bake_colors, with_atlas
@@ -189,9 +200,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             texture = bake_colors(layout, meshes[0].colors)
             meshes = with_atlas(meshes, layout)
     else:
-        meshes = (frame_mesh(frame, grid, options.iso, options.color_neighbors, options.fill,
-                             options.min_piece_share, options.surface)
-                  for frame in iter_frames(model, times, progress, desc="mesh"))
+        meshes = (frame_mesh(frame, grid, options) for frame in iter_frames(model, times, progress, desc="mesh"))
     with atomic_dir(outdir, force) as tmp:
         for index, mesh in enumerate(meshes):
             names.append(frame_file_name("mesh", index, options.format))

@@ -17,7 +17,8 @@ so that surfaces do not jitter from re-quantisation.
   ``color_neighbors`` nearest Gaussians, weighted by their density at the vertex, of their DC colour
   ``clip(0.5 + SH_C0 dc, 0, 1)``.
 
-`frame_mesh` also makes the surface fused from rendered depth (`splatreel.export.fused`) on the same grid.
+The grid, marching cubes, pieces and normals here are shared with the surface fused from rendered depth
+(`splatreel.export.fused`); `splatreel.export.mesh.frame_mesh` picks one of the two.
 """
 
 from __future__ import annotations
@@ -268,18 +269,9 @@ def live_density(frame: SplatFrame, grid: Grid) -> tuple[np.ndarray, np.ndarray,
     return density_field(grid, means, inv, opacities, radii), means, inv, opacities
 
 
-def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors: int = 8,
-               fill: bool = True, min_piece_share: float = 0.0, surface: str = "density") -> FrameMesh:
-    """The surface of one frame on `grid` (see module doc; `surface` 'fused': `splatreel.export.fused`)."""
-    if surface == "fused":
-        from .fused import fuse_frame, sample_colors
-
-        sdf, colors, held = fuse_frame(frame, grid, fill)
-        vertices, faces = largest_pieces(*extract_surface(-sdf, grid, 0.0), min_piece_share)
-        if faces.shape[0] == 0:
-            return empty_mesh()
-        normals = vertex_normals(vertices, faces)
-        return FrameMesh(vertices, faces, normals, sample_colors(colors, held, grid, vertices))
+def density_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors: int = 8, fill: bool = True,
+                 min_piece_share: float = 0.0) -> FrameMesh:
+    """The density iso-surface of one frame on `grid` (see module doc)."""
     field, means, inv, opacities = live_density(frame, grid)
     if fill:
         field = fill_cavities(field, iso)
@@ -289,5 +281,3 @@ def frame_mesh(frame: SplatFrame, grid: Grid, iso: float = 0.5, color_neighbors:
     normals = vertex_normals(vertices, faces)
     colors = vertex_colors(vertices, means, inv, opacities, frame.dc_rgb()[frame.opacities > 0], color_neighbors)
     return FrameMesh(vertices, faces, normals, colors)
-
-

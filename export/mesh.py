@@ -12,7 +12,8 @@ definition, and what OBJ importers assume), recorded as ``mesh_up_axis`` in the 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Sequence
@@ -27,7 +28,7 @@ from .base import (Y_UP_FORMATS, ExportError, box_of, frame_file_name, iter_fram
 from .surface import DILATION_VOXELS, FrameMesh, Grid, density_mesh, grid_for_box
 
 MESH_FORMATS: tuple[str, ...] = ("obj", "ply", "glb")
-SURFACES: tuple[str, ...] = ("density", "fused")
+SURFACES: tuple[str, ...] = ("auto", "fused", "density")
 
 
 @dataclass(frozen=True)
@@ -60,11 +61,12 @@ class MeshOptions:
     min_piece_share: float = 0.02
     #: with `deforming`: UVs (an xatlas atlas) and ``texture.png`` baked from the vertex colours, on the USD mesh
     uv: bool = False
-    #: 'fused' (depth rendered from many views, fused into a TSDF: `splatreel.export.fused`) or 'density' (the
-    #: iso-surface of the Gaussians' density, faster; `splatreel.export.surface`). Fused is the default: measured
-    #: against the procedural samples' true surfaces (bench/mesh.py), it lies 0.6-0.8 % of the object's size from
-    #: them, the density iso-surface 0.9-2.5 %
-    surface: str = "fused"
+    #: 'fused' (depth rendered from many views, fused into a TSDF: `splatreel.export.fused`), 'density' (the
+    #: iso-surface of the Gaussians' density, faster; `splatreel.export.surface`) or 'auto' (`choose_surface`: fused
+    #: unless it loses parts of the model). Measured against the procedural samples' true surfaces (bench/mesh.py),
+    #: the fused surface lies 0.6-0.7 % of the object's size from them, the density iso-surface 0.9-1.2 %; but a
+    #: signed distance cannot hold an open sheet seen from both sides, such as a floor
+    surface: str = "auto"
 
     def __post_init__(self) -> None:
         if self.format not in MESH_FORMATS:
@@ -85,8 +87,6 @@ def mesh_bytes(mesh: FrameMesh, fmt: str, up_axis: str = "Y") -> bytes:
     """The file bytes of `mesh` as ``obj`` (``v x y z r g b`` colours), ``ply`` (binary, uchar RGBA, normals) or
     ``glb`` (linear ``COLOR_0``, normals). OBJ and GLB are written +Y up (`to_y_up` from the model's `up_axis`),
     PLY in the model's own axes."""
-    from dataclasses import replace
-
     from trimesh.exchange.gltf import export_glb
     from trimesh.exchange.obj import export_obj
     from trimesh.exchange.ply import export_ply
@@ -154,6 +154,20 @@ def frame_mesh(frame, grid: Grid, options: MeshOptions) -> FrameMesh:
     return density_mesh(frame, grid, options.iso, options.color_neighbors, options.fill, options.min_piece_share)
 
 
+def choose_surface(model, times: Sequence[float], grid: Grid, options: MeshOptions) -> tuple[str, str]:
+    """(surface, why) for `options.surface`; 'auto' fuses the middle frame and takes 'fused' when the fused surface
+    holds at least `splatreel.export.fused.MIN_COVERAGE` of the density iso-surface's solid, else 'density'."""
+    if options.surface != "auto":
+        return options.surface, "asked for"
+    from .fused import MIN_COVERAGE, surface_coverage
+
+    coverage = surface_coverage(slice_frame(model, float(times[len(times) // 2])), grid, options.iso)
+    if coverage >= MIN_COVERAGE:
+        return "fused", f"the fused surface holds {coverage:.0%} of the model's solid parts"
+    return "density", (f"the fused surface holds only {coverage:.0%} of the model's solid parts (thin open sheets "
+                       "such as a floor)")
+
+
 def sequence_grid(model, times: Sequence[float], resolution: int, progress: bool = False) -> Grid:
     """The one grid for every frame: the box of every visible Gaussian's 3-sigma support over `times`."""
     if model.kind == "gaussians4d":
@@ -182,6 +196,11 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
 
     outdir = check_writable(outdir, force)
     grid = sequence_grid(model, times, options.resolution, progress)
+    surface, surface_reason = choose_surface(model, times, grid, options)
+    if surface != options.surface and surface == "density":
+        warnings.warn(f"export mesh: using the density iso-surface: {surface_reason} (--surface fused forces it)",
+                      stacklevel=2)
+    options = replace(options, surface=surface)
     usd = _UsdMeshSequence(times, options) if options.usd else None
     names: list[str] = []
     drift = None
@@ -229,7 +248,8 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             extra.append("mesh_sequence.usd")
         (tmp / "manifest.json").write_bytes(manifest(
             "mesh-sequence", times, names, options.fps, time_range=list(model.time_range),
-            mesh_format=options.format, surface=options.surface, resolution=options.resolution, filled=options.fill,
+            mesh_format=options.format, surface=options.surface, surface_reason=surface_reason,
+            resolution=options.resolution, filled=options.fill,
             **({"iso": options.iso, "dilation_voxels": DILATION_VOXELS} if options.surface == "density" else {}),
             grid={"origin": grid.origin.tolist(), "voxel": grid.voxel, "shape": list(grid.shape)},
             up_axis=options.up_axis, meters_per_unit=options.meters_per_unit,
@@ -254,7 +274,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--surface", choices=SURFACES, default=d.surface,
                    help=f"fused: depth and colour rendered from {FUSION_VIEWS} views around the model, fused into a "
                         "signed distance field (closer to what the renders show); density: the iso-surface of the "
-                        f"Gaussians' density (about 3x faster) (default {d.surface})")
+                        "Gaussians' density (about 3x faster; holds open sheets such as floors); auto: fused unless "
+                        f"it loses parts of the model (tried on the middle frame) (default {d.surface})")
     p.add_argument("--iso", type=positive_number, default=d.iso,
                    help=f"density level of the surface, with --surface density (default {d.iso})")
     p.add_argument("--no-fill", action="store_true",

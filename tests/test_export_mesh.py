@@ -86,11 +86,11 @@ def test_the_default_fused_surface_lies_closer_to_the_truth_than_the_density_iso
 
     model = build_model(name, num_gaussians=6000, frames=5)
     times = frame_times(model.time_range, 2)
-    assert MeshOptions().surface == "fused"
     distances = {}
-    for surface in ("density", "fused"):
+    for surface in ("density", MeshOptions().surface):  # the default ('auto') fuses every bounded sample
         paths = write_mesh_sequence(model, tmp_path / surface, times, MeshOptions(resolution=48, usd=False,
                                                                                    surface=surface))
+        surface = json.loads(paths[-1].read_text())["surface"]
         meshes = [trimesh.load(p) for p in paths[:len(times)]]
         assert all(m.is_watertight and m.volume > 0 for m in meshes)
         assert all(len(m.split(only_watertight=False)) == 1 for m in meshes)  # no floaters, no inner shells
@@ -99,6 +99,28 @@ def test_the_default_fused_surface_lies_closer_to_the_truth_than_the_density_iso
         assert colors.std(0).max() > 0.04  # the object's colours (the wave's soft stripes: 0.1), not one grey
     assert max(distances["fused"]) < 0.8 * min(distances["density"]), distances
     assert max(distances["fused"]) < FUSED_BOUND, distances
+
+
+def test_auto_falls_back_to_the_density_surface_where_fusing_loses_an_open_floor(tmp_path):
+    """A signed distance cannot hold an open sheet seen from both sides: on the floor sample the fused surface keeps
+    a few per cent of the model's solid parts. The default ('auto') notices on the middle frame, says so in one
+    warning and in the manifest, and meshes the density iso-surface, which holds the floor."""
+    import trimesh
+
+    from splatreel.samples import build_model
+
+    model = build_model("floor", num_gaussians=6000)
+    times = frame_times(model.time_range, 2)
+    with pytest.warns(UserWarning, match="using the density iso-surface.*--surface fused forces it"):
+        auto = write_mesh_sequence(model, tmp_path / "auto", times, MeshOptions(resolution=48, usd=False))
+    forced = write_mesh_sequence(model, tmp_path / "fused", times, MeshOptions(resolution=48, usd=False,
+                                                                               surface="fused"))
+    assert json.loads(auto[-1].read_text())["surface"] == "density"
+    assert "floor" in json.loads(auto[-1].read_text())["surface_reason"]
+    assert json.loads(forced[-1].read_text())["surface"] == "fused"
+    floor = trimesh.load(auto[0], process=False)
+    assert np.ptp(floor.vertices[:, :2], 0).min() > 4.0  # the floor runs across the whole scene
+    assert len(trimesh.load(forced[0], process=False).vertices) < 0.2 * len(floor.vertices)
 
 
 def test_the_bundled_trained_checkpoint_exports_to_usd_and_to_meshes_of_its_object(tmp_path, capsys):

@@ -198,7 +198,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
     grid = sequence_grid(model, times, options.resolution, progress)
     surface, surface_reason = choose_surface(model, times, grid, options)
     if surface != options.surface and surface == "density":
-        warnings.warn(f"export mesh: using the density iso-surface: {surface_reason} (--surface fused forces it)",
+        warnings.warn(f"using the density iso-surface: {surface_reason} (--surface fused forces it)",
                       stacklevel=2)
     options = replace(options, surface=surface)
     usd = _UsdMeshSequence(times, options) if options.usd else None

@@ -26,9 +26,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from splatreel.constants import TEMPORAL_CULL
+from splatreel.meshes import vertex_normals
 
 from .base import iter_frames
-from .surface import vertex_normals
 
 #: Gaussians that carry each vertex
 CARRIERS = 16

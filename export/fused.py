@@ -91,32 +91,35 @@ def frame_gaussians(frame):
                        visible=torch.ones(len(shown), dtype=torch.bool), sh_degree=frame.sh_degree)
 
 
-def grid_length(grid, share: float) -> float:
-    """`share` of the longest side of `grid`'s box, in world units."""
-    return share * grid.side()
-
-
 def fused_mesh(frame, grid, fill: bool = True, min_piece_share: float = 0.0):
     """The fused surface (`splatreel.export.surface.FrameMesh`) of one exported frame on `grid` (module doc)."""
-    from .surface import FrameMesh, empty_mesh, extract_surface, largest_pieces, vertex_normals
+    return mesh_of_fields(fuse_frame(frame, grid, fill), grid, min_piece_share)
 
-    sdf, colors, held = fuse_frame(frame, grid, fill)
+
+def mesh_of_fields(fields: tuple[np.ndarray, np.ndarray, np.ndarray], grid, min_piece_share: float = 0.0):
+    """The `FrameMesh` of `fuse`'s (signed distance, colours, held) on `grid`: the zero level, its largest pieces,
+    vertex normals and the fused colours."""
+    from splatreel.meshes import vertex_normals
+
+    from .surface import FrameMesh, empty_mesh, extract_surface, largest_pieces
+
+    sdf, colors, held = fields
     vertices, faces = largest_pieces(*extract_surface(-sdf, grid, 0.0), min_piece_share)
     if faces.shape[0] == 0:
         return empty_mesh()
     return FrameMesh(vertices, faces, vertex_normals(vertices, faces), sample_colors(colors, held, grid, vertices))
 
 
-def surface_coverage(frame, grid, iso: float = 0.5) -> float:
-    """Share of the voxels inside the frame's density iso-surface (`iso`) that lie inside the fused surface or within
-    two voxels of it: near 1 where the fused surface holds the model's solid parts, near 0 where it lost them (thin
-    open sheets such as a floor)."""
+def surface_coverage(frame, grid, sdf: np.ndarray, iso: float = 0.5) -> float:
+    """Share of the voxels inside the frame's density iso-surface (`iso`) that lie inside its fused surface (`sdf`
+    from `fuse`) or within two voxels of it: near 1 where the fused surface holds the model's solid parts, near 0
+    where it lost them (thin open sheets such as a floor)."""
     from scipy.ndimage import binary_dilation
 
     from .surface import live_density
 
     solid = live_density(frame, grid)[0] >= iso
-    near = binary_dilation(fuse_frame(frame, grid)[0] < 0, iterations=2)
+    near = binary_dilation(sdf < 0, iterations=2)
     return float((solid & near).sum() / max(int(solid.sum()), 1))
 
 
@@ -136,7 +139,7 @@ def support(frame, grid) -> np.ndarray:
     from .surface import Grid, enclosed, live_density
 
     coarse = Grid(origin=grid.origin, voxel=2.0 * grid.voxel, shape=tuple((n + 1) // 2 for n in grid.shape))
-    band = grid_length(grid, TRUNCATION_SHARE) / coarse.voxel
+    band = TRUNCATION_SHARE * grid.side() / coarse.voxel
     field = live_density(frame, coarse)[0]
     held = enclosed(binary_dilation(field > SUPPORT_DENSITY, iterations=int(math.ceil(band)) + 1))
     nearest = [np.minimum((np.arange(n) + 1) // 2, c - 1) for n, c in zip(grid.shape, coarse.shape)]
@@ -166,7 +169,7 @@ def fuse(gaussians, grid, cameras, candidates: np.ndarray | None = None, fill: b
     intrinsics = np.array([[cam.fx, cam.fy, cam.cx, cam.cy] for cam in cameras], np.float64)
     sdf_sum, seen = np.zeros(len(points)), np.zeros(len(points))
     rgb_sum, rgb_weight = np.zeros((len(points), 3)), np.zeros(len(points))
-    _fusion_kernel()(points, world_to_camera, intrinsics, alpha, depth, rgb, grid_length(grid, TRUNCATION_SHARE),
+    _fusion_kernel()(points, world_to_camera, intrinsics, alpha, depth, rgb, TRUNCATION_SHARE * grid.side(),
                      OPAQUE_ALPHA, sdf_sum, seen, rgb_sum, rgb_weight)
     from scipy.ndimage import gaussian_filter
 
@@ -177,7 +180,7 @@ def fuse(gaussians, grid, cameras, candidates: np.ndarray | None = None, fill: b
     sdf[chosen] = np.where(seen > 0, sdf_sum / np.maximum(seen, 1), -1.0)
     rgb[chosen] = np.clip(rgb_sum / np.maximum(rgb_weight, 1)[:, None], 0, 1)
     held[chosen] = rgb_weight > 0
-    sdf = gaussian_filter(sdf.reshape(grid.shape), grid_length(grid, SMOOTHING_SHARE) / grid.voxel, mode="nearest")
+    sdf = gaussian_filter(sdf.reshape(grid.shape), SMOOTHING_SHARE * grid.side() / grid.voxel, mode="nearest")
     if fill:
         sdf = -fill_cavities(-sdf, 0.0, value=1.0)
     return sdf, rgb.reshape(*grid.shape, 3), held.reshape(grid.shape)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import warnings
 from dataclasses import dataclass, replace
-from functools import partial
 from pathlib import Path
 from typing import Sequence
 
@@ -146,7 +145,8 @@ class _UsdMeshSequence:
 
 
 def frame_mesh(frame, grid: Grid, options: MeshOptions) -> FrameMesh:
-    """The surface (`options.surface`) of one exported frame (`splatreel.export.SplatFrame`) on `grid`."""
+    """The surface (`options.surface`, 'fused' or 'density': `choose_surface` resolves 'auto' first) of one exported
+    frame (`splatreel.export.SplatFrame`) on `grid`."""
     if options.surface == "fused":
         from .fused import fused_mesh
 
@@ -154,18 +154,23 @@ def frame_mesh(frame, grid: Grid, options: MeshOptions) -> FrameMesh:
     return density_mesh(frame, grid, options.iso, options.color_neighbors, options.fill, options.min_piece_share)
 
 
-def choose_surface(model, times: Sequence[float], grid: Grid, options: MeshOptions) -> tuple[str, str]:
-    """(surface, why) for `options.surface`; 'auto' fuses the middle frame and takes 'fused' when the fused surface
-    holds at least `splatreel.export.fused.MIN_COVERAGE` of the density iso-surface's solid, else 'density'."""
+def choose_surface(model, times: Sequence[float], grid: Grid, options: MeshOptions) -> tuple[str, str, dict]:
+    """(surface, why, {frame index: its `FrameMesh`} already made) for `options.surface`. 'auto' fuses the middle
+    frame and takes 'fused' when the fused surface holds at least `splatreel.export.fused.MIN_COVERAGE` of the
+    density iso-surface's solid, else 'density'; the middle frame's fused mesh is kept, not made again."""
     if options.surface != "auto":
-        return options.surface, "asked for"
-    from .fused import MIN_COVERAGE, surface_coverage
+        return options.surface, "asked for", {}
+    from .fused import MIN_COVERAGE, fuse_frame, mesh_of_fields, surface_coverage
 
-    coverage = surface_coverage(slice_frame(model, float(times[len(times) // 2])), grid, options.iso)
+    middle = len(times) // 2
+    frame = slice_frame(model, float(times[middle]), middle)
+    fields = fuse_frame(frame, grid, options.fill)
+    coverage = surface_coverage(frame, grid, fields[0], options.iso)
     if coverage >= MIN_COVERAGE:
-        return "fused", f"the fused surface holds {coverage:.0%} of the model's solid parts"
+        return ("fused", f"the fused surface holds {coverage:.0%} of the model's solid parts",
+                {middle: mesh_of_fields(fields, grid, options.min_piece_share)})
     return "density", (f"the fused surface holds only {coverage:.0%} of the model's solid parts (thin open sheets "
-                       "such as a floor)")
+                       "such as a floor)"), {}
 
 
 def sequence_grid(model, times: Sequence[float], resolution: int, progress: bool = False) -> Grid:
@@ -196,11 +201,16 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
 
     outdir = check_writable(outdir, force)
     grid = sequence_grid(model, times, options.resolution, progress)
-    surface, surface_reason = choose_surface(model, times, grid, options)
+    surface, surface_reason, made = choose_surface(model, times, grid, options)
     if surface != options.surface and surface == "density":
         warnings.warn(f"using the density iso-surface: {surface_reason} (--surface fused forces it)",
                       stacklevel=2)
     options = replace(options, surface=surface)
+
+    def surface_of(frame) -> FrameMesh:
+        mesh = made.pop(frame.index, None)
+        return frame_mesh(frame, grid, options) if mesh is None else mesh
+
     usd = _UsdMeshSequence(times, options) if options.usd else None
     names: list[str] = []
     drift = None
@@ -209,8 +219,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
 
         reference = None if options.reference_time is None else \
             int(np.argmin(np.abs(np.asarray(times, np.float64) - options.reference_time)))
-        meshes, drift = deforming_meshes(model, times, grid, partial(frame_mesh, grid=grid, options=options),
-                                         reference, progress)
+        meshes, drift = deforming_meshes(model, times, grid, surface_of, reference, progress)
         layout = None
         if options.uv and len(meshes[0].faces):
             from .uv import atlas, bake_colors, with_atlas
@@ -219,7 +228,7 @@ def write_mesh_sequence(model, outdir: str | Path, times: Sequence[float], optio
             texture = bake_colors(layout, meshes[0].colors)
             meshes = with_atlas(meshes, layout)
     else:
-        meshes = (frame_mesh(frame, grid, options) for frame in iter_frames(model, times, progress, desc="mesh"))
+        meshes = (surface_of(frame) for frame in iter_frames(model, times, progress, desc="mesh"))
     with atomic_dir(outdir, force) as tmp:
         for index, mesh in enumerate(meshes):
             names.append(frame_file_name("mesh", index, options.format))

@@ -30,6 +30,7 @@ import torch
 
 from splatreel.colorspace import srgb_to_linear
 from splatreel.covariance import covariance_3d
+from splatreel.meshes import vertex_normals
 
 from .base import ExportError, SplatFrame
 
@@ -241,20 +242,6 @@ def largest_pieces(vertices: np.ndarray, faces: np.ndarray, min_share: float) ->
 def empty_mesh() -> FrameMesh:
     z = np.zeros((0, 3))
     return FrameMesh(z, np.zeros((0, 3), np.int64), z, z.astype(np.float32))
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``[V, 3]`` float64 area-weighted unit vertex normals (outward for outward winding): the sum of the adjacent
-    faces' cross products, whose length is twice their area. A vertex without a face (or with only degenerate ones)
-    gets (0, 0, 0)."""
-    vertices = np.asarray(vertices, np.float64)
-    faces = np.asarray(faces, np.int64)
-    tri = vertices[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    corners = faces.reshape(-1)
-    summed = np.stack([np.bincount(corners, np.repeat(cross[:, a], 3), len(vertices)) for a in range(3)], -1)
-    length = np.linalg.norm(summed, axis=1, keepdims=True)
-    return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
 
 
 def live_density(frame: SplatFrame, grid: Grid) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from splatreel import quaternion
+from splatreel.meshes import face_cross, vertex_normals  # noqa: F401  (part of this module's API)
 
 
 @dataclass(frozen=True)
@@ -42,24 +43,9 @@ class Mesh:
         return self.vertices.min(0), self.vertices.max(0)
 
 
-def face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(F, 3)`` cross(v1 - v0, v2 - v0): the face normal times twice the face area."""
-    v0, v1, v2 = (vertices[faces[:, k]] for k in range(3))
-    return np.cross(v1 - v0, v2 - v0)
-
-
 def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """``(F,)`` triangle areas."""
     return 0.5 * np.linalg.norm(face_cross(vertices, faces), axis=-1)
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(V, 3)`` unit normals: sum of the adjacent face normals weighted by face area."""
-    crosses = face_cross(vertices, faces)
-    acc = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(acc, faces[:, k], crosses)
-    return acc / np.maximum(np.linalg.norm(acc, axis=-1, keepdims=True), 1e-12)
 
 
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:

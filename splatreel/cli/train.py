@@ -65,8 +65,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--t-scale-init", type=positive_number, metavar="FRAMES",
                    help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
     p.add_argument("--static-share", type=fraction, metavar="F",
-                   help="share of the initial Gaussians that start static, shared by every time (default: the "
-                        "recipe's)")
+                   help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
+                        "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
     p.add_argument("--init-mesh", metavar="FILE", help="initialise on the surface of this mesh (4DGen)")
     p.add_argument("--sh-degree", type=int, choices=range(4), help="spatial SH degree, 0-3 (default: the preset's; train prints it)")
     p.add_argument("--sh-degree-t", type=int, choices=range(3), help="time (Fourier) SH degree, 0-2 (default: the preset's)")

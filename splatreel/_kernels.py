@@ -12,8 +12,10 @@ float is float32. The math is the reference 3DGS one (graphdeco-inria/diff-gauss
 * front to back, C += f alpha T, T *= 1 - alpha, stopping (without this Gaussian) once T would drop to
   TRANSMITTANCE_THRESHOLD or below.
 
-Kernels are parallel over 16x16 tiles (`prange`): a tile is owned by one thread, which walks its depth-sorted
-Gaussian list serially (the backward pass back to front). Inside a tile a Gaussian visits only the pixel rows its
+Kernels are parallel over 16x16 tiles: a tile is owned by one thread, which walks its depth-sorted Gaussian list
+serially (the backward pass back to front). An object covers few tiles, often in one half of the image, and numba
+splits a ``prange`` statically into equal runs of iterations, so the kernels loop over *bins* of tiles instead, one
+per thread, filled by `balance_tiles` to near-equal work (without it two threads ran only 1.25x faster than one). Inside a tile a Gaussian visits only the pixel rows its
 alpha >= 1/255 ellipse can reach (with a pixel of slack), and each such row is evaluated across the whole tile width
 with the exact per-pixel test, branch-free so that LLVM vectorises it (the "scanline" design of the notes, §3.4,
 with SIMD rows). The backward pass writes one gradient slot per intersection, summing the columns of a row in a
@@ -94,6 +96,8 @@ _ALPHA_MAX = _F(MAX_ALPHA)
 _T_MIN = _F(TRANSMITTANCE_THRESHOLD)
 _TILE = TILE_SIZE
 _TILE_PIXELS = TILE_SIZE * TILE_SIZE
+#: Work of a tile beyond its Gaussians (reading and writing its pixels), in units of one Gaussian, for `balance_tiles`.
+_TILE_OVERHEAD = 2
 
 _jit = njit(cache=CACHE_ENABLED, nogil=True)
 _pjit = njit(parallel=True, cache=CACHE_ENABLED, nogil=True)
@@ -139,6 +143,49 @@ def bin_tiles(rects, num_tiles, tiles_x):
                 isect_slots[pos] = slot
                 slot += 1
     return tile_offsets, flat_ids, isect_slots, gauss_offsets
+
+
+@_jit
+def balance_tiles(work, num_bins):
+    """Deal the tiles into `num_bins` bins of near-equal total `work` (``[num_tiles]`` int64 estimates, e.g. list
+    lengths): heaviest tile first, each to the bin with the least work so far (longest-processing-time rule).
+    Returns (bin_offsets ``[num_bins + 1]`` int64, bin_tiles ``[num_tiles]`` int64): bin b holds the tiles
+    ``bin_tiles[bin_offsets[b]:bin_offsets[b+1]]``. Every tile lands in exactly one bin."""
+    n = work.shape[0]
+    order = np.argsort(-work, kind="mergesort")  # stable: equal work keeps tile order, so bins are reproducible
+    load = np.zeros(num_bins, np.int64)
+    owner = np.empty(n, np.int64)
+    sizes = np.zeros(num_bins + 1, np.int64)
+    for t in order:
+        b = np.argmin(load)
+        owner[t] = b
+        load[b] += work[t] + _TILE_OVERHEAD
+        sizes[b + 1] += 1
+    bin_offsets = np.cumsum(sizes)
+    bin_tiles = np.empty(n, np.int64)
+    cursor = bin_offsets[:num_bins].copy()
+    for t in order:
+        bin_tiles[cursor[owner[t]]] = t
+        cursor[owner[t]] += 1
+    return bin_offsets, bin_tiles
+
+
+def tile_bins(work):
+    """`balance_tiles` into one bin per thread numba uses now (call inside `num_threads`)."""
+    return balance_tiles(np.ascontiguousarray(work, dtype=np.int64), max(1, numba.get_num_threads()))
+
+
+@_jit
+def backward_work(last_ids, tiles_x, tiles_y):
+    """``[tiles]`` int64 work of each tile's backward pass: 1 + the deepest list position any of its pixels
+    composited (`composite_forward`'s ``out_last``); the backward walk starts there."""
+    height, width = last_ids.shape
+    work = np.zeros(tiles_x * tiles_y, np.int64)
+    for py in range(height):
+        for px in range(width):
+            t = (py // _TILE) * tiles_x + px // _TILE
+            work[t] = max(work[t], last_ids[py, px] + 1)
+    return work
 
 
 def pack_gaussians(means2d, conics, channels, opacities, s_max, ext_y):
@@ -247,77 +294,86 @@ def _pixel_alpha(a, b, c, o, dx, dy):
 
 # --- forward -----------------------------------------------------------------------------------------------------
 @_pjit
-def composite_forward(gauss, background, tile_offsets, flat_ids, width, height, tiles_x, out_channels,
-                      out_transmittance, out_last):
+def composite_forward(gauss, background, tile_offsets, flat_ids, bin_offsets, bin_tiles, width, height, tiles_x,
+                      out_channels, out_transmittance, out_last):
     """Front-to-back compositing of every tile.
 
     Args:
         gauss: ``[R, PACKED]`` rows from `pack_gaussians`.
         background ``[4]``: added as T_final * background.
         tile_offsets, flat_ids: from `bin_tiles`.
+        bin_offsets, bin_tiles: from `balance_tiles` (every tile exactly once).
     Writes:
         out_channels ``[H, W, 4]``: sum f alpha T + T_final background.
         out_transmittance ``[H, W]``: T_final.
         out_last ``[H, W]`` int32: position, in its tile's list, of the last Gaussian composited (-1: none).
     """
-    tiles_y = (height + _TILE - 1) // _TILE
-    for tile in prange(tiles_x * tiles_y):
-        x0, y0, x1, y1 = _tile_bounds(tile, tiles_x, width, height)
-        nx = x1 - x0
-        num_px = nx * (y1 - y0)
-        trans = np.ones(_TILE_PIXELS, np.float32)
-        acc = np.zeros((NUM_CHANNELS, _TILE_PIXELS), np.float32)  # one contiguous row per channel
-        acc0, acc1, acc2, acc3 = acc[0], acc[1], acc[2], acc[3]
-        last = np.full(_TILE_PIXELS, -1, np.int32)
-        done = np.zeros(_TILE_PIXELS, np.int32)
-        rows = np.empty(_TILE, np.int64)
-        num_done = 0
-        start = tile_offsets[tile]
-        for k in range(start, tile_offsets[tile + 1]):
-            if num_done == num_px:
-                break  # every pixel of the tile is saturated
-            g = flat_ids[k]
-            u, v, a, b, c, o, f0, f1, f2, f3 = _unpack(gauss, g)
-            rank = np.int32(k - start)
-            for r in range(_rows_touched(gauss, g, x0, y0, x1, y1, rows)):
-                dy = v - (_F(rows[r]) + _HALF)
-                row = np.uint64((rows[r] - y0) * _TILE)
-                stopped = 0
-                for i in range(nx):
-                    p = row + np.uint64(i)
-                    dx = u - (_F(x0 + i) + _HALF)
-                    sigma, _, _, alpha = _pixel_alpha(a, b, c, o, dx, dy)
-                    t = trans[p]
-                    t_next = t * (_ONE - alpha)
-                    hit = (sigma >= _ZERO) & (alpha >= _ALPHA_MIN) & (done[p] == 0)
-                    stop = hit & (t_next <= _T_MIN)  # saturates: this Gaussian is excluded, the pixel is done
-                    take = hit & (t_next > _T_MIN)
-                    w = alpha * t if take else _ZERO
-                    acc0[p] += w * f0
-                    acc1[p] += w * f1
-                    acc2[p] += w * f2
-                    acc3[p] += w * f3
-                    trans[p] = t_next if take else t
-                    last[p] = rank if take else last[p]
-                    done[p] = 1 if stop else done[p]
-                    stopped += 1 if stop else 0
-                num_done += stopped
-        for py in range(y0, y1):
-            for px in range(x0, x1):
-                p = (py - y0) * _TILE + (px - x0)
+    for b in prange(bin_offsets.shape[0] - 1):
+        for j in range(bin_offsets[b], bin_offsets[b + 1]):
+            _forward_tile(bin_tiles[j], gauss, background, tile_offsets, flat_ids, width, height, tiles_x,
+                          out_channels, out_transmittance, out_last)
+
+
+@njit(inline="always", cache=CACHE_ENABLED, nogil=True)
+def _forward_tile(tile, gauss, background, tile_offsets, flat_ids, width, height, tiles_x, out_channels,
+                  out_transmittance, out_last):
+    """`composite_forward` of one tile."""
+    x0, y0, x1, y1 = _tile_bounds(tile, tiles_x, width, height)
+    nx = x1 - x0
+    num_px = nx * (y1 - y0)
+    trans = np.ones(_TILE_PIXELS, np.float32)
+    acc = np.zeros((NUM_CHANNELS, _TILE_PIXELS), np.float32)  # one contiguous row per channel
+    acc0, acc1, acc2, acc3 = acc[0], acc[1], acc[2], acc[3]
+    last = np.full(_TILE_PIXELS, -1, np.int32)
+    done = np.zeros(_TILE_PIXELS, np.int32)
+    rows = np.empty(_TILE, np.int64)
+    num_done = 0
+    start = tile_offsets[tile]
+    for k in range(start, tile_offsets[tile + 1]):
+        if num_done == num_px:
+            break  # every pixel of the tile is saturated
+        g = flat_ids[k]
+        u, v, a, b, c, o, f0, f1, f2, f3 = _unpack(gauss, g)
+        rank = np.int32(k - start)
+        for r in range(_rows_touched(gauss, g, x0, y0, x1, y1, rows)):
+            dy = v - (_F(rows[r]) + _HALF)
+            row = np.uint64((rows[r] - y0) * _TILE)
+            stopped = 0
+            for i in range(nx):
+                p = row + np.uint64(i)
+                dx = u - (_F(x0 + i) + _HALF)
+                sigma, _, _, alpha = _pixel_alpha(a, b, c, o, dx, dy)
                 t = trans[p]
-                out_channels[py, px, 0] = acc0[p] + t * background[0]
-                out_channels[py, px, 1] = acc1[p] + t * background[1]
-                out_channels[py, px, 2] = acc2[p] + t * background[2]
-                out_channels[py, px, 3] = acc3[p] + t * background[3]
-                out_transmittance[py, px] = t
-                out_last[py, px] = last[p]
+                t_next = t * (_ONE - alpha)
+                hit = (sigma >= _ZERO) & (alpha >= _ALPHA_MIN) & (done[p] == 0)
+                stop = hit & (t_next <= _T_MIN)  # saturates: this Gaussian is excluded, the pixel is done
+                take = hit & (t_next > _T_MIN)
+                w = alpha * t if take else _ZERO
+                acc0[p] += w * f0
+                acc1[p] += w * f1
+                acc2[p] += w * f2
+                acc3[p] += w * f3
+                trans[p] = t_next if take else t
+                last[p] = rank if take else last[p]
+                done[p] = 1 if stop else done[p]
+                stopped += 1 if stop else 0
+            num_done += stopped
+    for py in range(y0, y1):
+        for px in range(x0, x1):
+            p = (py - y0) * _TILE + (px - x0)
+            t = trans[p]
+            out_channels[py, px, 0] = acc0[p] + t * background[0]
+            out_channels[py, px, 1] = acc1[p] + t * background[1]
+            out_channels[py, px, 2] = acc2[p] + t * background[2]
+            out_channels[py, px, 3] = acc3[p] + t * background[3]
+            out_transmittance[py, px] = t
+            out_last[py, px] = last[p]
 
 
 # --- backward ----------------------------------------------------------------------------------------------------
 @_pjit
-def composite_backward(gauss, background, tile_offsets, flat_ids, isect_slots, width, height, tiles_x,
-                       transmittance, last_ids, grad_channels, grad_alpha, out_slots):
+def composite_backward(gauss, background, tile_offsets, flat_ids, isect_slots, bin_offsets, bin_tiles, width, height,
+                       tiles_x, transmittance, last_ids, grad_channels, grad_alpha, out_slots):
     """Gradients of `composite_forward` per intersection, back to front from each pixel's last Gaussian.
 
     With T_k the transmittance in front of Gaussian k and S the channels composited behind it::
@@ -332,84 +388,93 @@ def composite_backward(gauss, background, tile_offsets, flat_ids, isect_slots, w
     Args:
         transmittance, last_ids: ``[H, W]`` from `composite_forward`.
         grad_channels ``[H, W, 4]``, grad_alpha ``[H, W]``: incoming gradients of out_channels and 1 - T_final.
+        bin_offsets, bin_tiles: from `balance_tiles` (every tile exactly once).
     """
-    tiles_y = (height + _TILE - 1) // _TILE
-    for tile in prange(tiles_x * tiles_y):
-        x0, y0, x1, y1 = _tile_bounds(tile, tiles_x, width, height)
-        nx = x1 - x0
-        trans = np.ones(_TILE_PIXELS, np.float32)
-        behind = np.zeros((NUM_CHANNELS, _TILE_PIXELS), np.float32)  # channels composited behind, per pixel
-        behind0, behind1, behind2, behind3 = behind[0], behind[1], behind[2], behind[3]
-        grad = np.zeros((NUM_CHANNELS, _TILE_PIXELS), np.float32)  # dL/d(output channels), per pixel
-        grad0, grad1, grad2, grad3 = grad[0], grad[1], grad[2], grad[3]
-        # dL/dalpha_k gets (T_final dL/dA - T_final bg . dL/dC) / (1 - alpha_k): the per-pixel factor below
-        grad_final = np.zeros(_TILE_PIXELS, np.float32)
-        last = np.full(_TILE_PIXELS, -1, np.int32)
-        columns = np.zeros((NUM_GRADS, _TILE), np.float32)  # per-column partial sums of one slot
-        rows = np.empty(_TILE, np.int64)
-        k_max = -1
-        for py in range(y0, y1):
-            for px in range(x0, x1):
-                p = (py - y0) * _TILE + (px - x0)
-                t_final = transmittance[py, px]
-                d0, d1 = grad_channels[py, px, 0], grad_channels[py, px, 1]
-                d2, d3 = grad_channels[py, px, 2], grad_channels[py, px, 3]
-                trans[p] = t_final
-                grad0[p], grad1[p], grad2[p], grad3[p] = d0, d1, d2, d3
-                bg_dot = background[0] * d0 + background[1] * d1 + background[2] * d2 + background[3] * d3
-                grad_final[p] = t_final * (grad_alpha[py, px] - bg_dot)
-                last[p] = last_ids[py, px]
-                k_max = max(k_max, last_ids[py, px])
-        start = tile_offsets[tile]
-        for kk in range(k_max, -1, -1):
-            k = start + kk
-            g = flat_ids[k]
-            u, v, a, b, c, o, f0, f1, f2, f3 = _unpack(gauss, g)
-            rank = np.int32(kk)
-            columns[:, :] = _ZERO
-            for r in range(_rows_touched(gauss, g, x0, y0, x1, y1, rows)):
-                dy = v - (_F(rows[r]) + _HALF)
-                row = np.uint64((rows[r] - y0) * _TILE)
-                for i in range(nx):
-                    col = np.uint64(i)
-                    p = row + col
-                    dx = u - (_F(x0 + i) + _HALF)
-                    sigma, vis, ov, alpha = _pixel_alpha(a, b, c, o, dx, dy)
-                    hit = (last[p] >= rank) & (sigma >= _ZERO) & (alpha >= _ALPHA_MIN)
-                    ra = _ONE / (_ONE - alpha)
-                    t_behind = trans[p]
-                    t = t_behind * ra if hit else t_behind  # T_k, the transmittance in front of this Gaussian
-                    trans[p] = t
-                    w = alpha * t if hit else _ZERO
-                    d0, d1, d2, d3 = grad0[p], grad1[p], grad2[p], grad3[p]
-                    s0, s1, s2, s3 = behind0[p], behind1[p], behind2[p], behind3[p]
-                    g_alpha = ((f0 * t - s0 * ra) * d0 + (f1 * t - s1 * ra) * d1 + (f2 * t - s2 * ra) * d2
-                               + (f3 * t - s3 * ra) * d3 + grad_final[p] * ra)
-                    behind0[p] = s0 + f0 * w
-                    behind1[p] = s1 + f1 * w
-                    behind2[p] = s2 + f2 * w
-                    behind3[p] = s3 + f3 * w
-                    unclamped = hit & (ov <= _ALPHA_MAX)
-                    g_sigma = -ov * g_alpha if unclamped else _ZERO
-                    columns[0, col] += g_sigma * (a * dx + b * dy)
-                    columns[1, col] += g_sigma * (b * dx + c * dy)
-                    columns[2, col] += _HALF * g_sigma * dx * dx
-                    columns[3, col] += g_sigma * dx * dy
-                    columns[4, col] += _HALF * g_sigma * dy * dy
-                    columns[5, col] += w * d0
-                    columns[6, col] += w * d1
-                    columns[7, col] += w * d2
-                    columns[8, col] += w * d3
-                    columns[9, col] += vis * g_alpha if unclamped else _ZERO
-            half = _TILE // 2
-            while half > 0:  # fixed pairwise order
-                for j in range(NUM_GRADS):
-                    for i in range(half):
-                        columns[j, i] += columns[j, i + half]
-                half //= 2
-            s = isect_slots[k]
+    for b in prange(bin_offsets.shape[0] - 1):
+        for j in range(bin_offsets[b], bin_offsets[b + 1]):
+            _backward_tile(bin_tiles[j], gauss, background, tile_offsets, flat_ids, isect_slots, width, height,
+                           tiles_x, transmittance, last_ids, grad_channels, grad_alpha, out_slots)
+
+
+@njit(inline="always", cache=CACHE_ENABLED, nogil=True)
+def _backward_tile(tile, gauss, background, tile_offsets, flat_ids, isect_slots, width, height, tiles_x,
+                   transmittance, last_ids, grad_channels, grad_alpha, out_slots):
+    """`composite_backward` of one tile."""
+    x0, y0, x1, y1 = _tile_bounds(tile, tiles_x, width, height)
+    nx = x1 - x0
+    trans = np.ones(_TILE_PIXELS, np.float32)
+    behind = np.zeros((NUM_CHANNELS, _TILE_PIXELS), np.float32)  # channels composited behind, per pixel
+    behind0, behind1, behind2, behind3 = behind[0], behind[1], behind[2], behind[3]
+    grad = np.zeros((NUM_CHANNELS, _TILE_PIXELS), np.float32)  # dL/d(output channels), per pixel
+    grad0, grad1, grad2, grad3 = grad[0], grad[1], grad[2], grad[3]
+    # dL/dalpha_k gets (T_final dL/dA - T_final bg . dL/dC) / (1 - alpha_k): the per-pixel factor below
+    grad_final = np.zeros(_TILE_PIXELS, np.float32)
+    last = np.full(_TILE_PIXELS, -1, np.int32)
+    columns = np.zeros((NUM_GRADS, _TILE), np.float32)  # per-column partial sums of one slot
+    rows = np.empty(_TILE, np.int64)
+    k_max = -1
+    for py in range(y0, y1):
+        for px in range(x0, x1):
+            p = (py - y0) * _TILE + (px - x0)
+            t_final = transmittance[py, px]
+            d0, d1 = grad_channels[py, px, 0], grad_channels[py, px, 1]
+            d2, d3 = grad_channels[py, px, 2], grad_channels[py, px, 3]
+            trans[p] = t_final
+            grad0[p], grad1[p], grad2[p], grad3[p] = d0, d1, d2, d3
+            bg_dot = background[0] * d0 + background[1] * d1 + background[2] * d2 + background[3] * d3
+            grad_final[p] = t_final * (grad_alpha[py, px] - bg_dot)
+            last[p] = last_ids[py, px]
+            k_max = max(k_max, last_ids[py, px])
+    start = tile_offsets[tile]
+    for kk in range(k_max, -1, -1):
+        k = start + kk
+        g = flat_ids[k]
+        u, v, a, b, c, o, f0, f1, f2, f3 = _unpack(gauss, g)
+        rank = np.int32(kk)
+        columns[:, :] = _ZERO
+        for r in range(_rows_touched(gauss, g, x0, y0, x1, y1, rows)):
+            dy = v - (_F(rows[r]) + _HALF)
+            row = np.uint64((rows[r] - y0) * _TILE)
+            for i in range(nx):
+                col = np.uint64(i)
+                p = row + col
+                dx = u - (_F(x0 + i) + _HALF)
+                sigma, vis, ov, alpha = _pixel_alpha(a, b, c, o, dx, dy)
+                hit = (last[p] >= rank) & (sigma >= _ZERO) & (alpha >= _ALPHA_MIN)
+                ra = _ONE / (_ONE - alpha)
+                t_behind = trans[p]
+                t = t_behind * ra if hit else t_behind  # T_k, the transmittance in front of this Gaussian
+                trans[p] = t
+                w = alpha * t if hit else _ZERO
+                d0, d1, d2, d3 = grad0[p], grad1[p], grad2[p], grad3[p]
+                s0, s1, s2, s3 = behind0[p], behind1[p], behind2[p], behind3[p]
+                g_alpha = ((f0 * t - s0 * ra) * d0 + (f1 * t - s1 * ra) * d1 + (f2 * t - s2 * ra) * d2
+                           + (f3 * t - s3 * ra) * d3 + grad_final[p] * ra)
+                behind0[p] = s0 + f0 * w
+                behind1[p] = s1 + f1 * w
+                behind2[p] = s2 + f2 * w
+                behind3[p] = s3 + f3 * w
+                unclamped = hit & (ov <= _ALPHA_MAX)
+                g_sigma = -ov * g_alpha if unclamped else _ZERO
+                columns[0, col] += g_sigma * (a * dx + b * dy)
+                columns[1, col] += g_sigma * (b * dx + c * dy)
+                columns[2, col] += _HALF * g_sigma * dx * dx
+                columns[3, col] += g_sigma * dx * dy
+                columns[4, col] += _HALF * g_sigma * dy * dy
+                columns[5, col] += w * d0
+                columns[6, col] += w * d1
+                columns[7, col] += w * d2
+                columns[8, col] += w * d3
+                columns[9, col] += vis * g_alpha if unclamped else _ZERO
+        half = _TILE // 2
+        while half > 0:  # fixed pairwise order
             for j in range(NUM_GRADS):
-                out_slots[s, j] = columns[j, 0]
+                for i in range(half):
+                    columns[j, i] += columns[j, i + half]
+            half //= 2
+        s = isect_slots[k]
+        for j in range(NUM_GRADS):
+            out_slots[s, j] = columns[j, 0]
 
 
 @_pjit

@@ -241,7 +241,9 @@ class _CompositeCPU(torch.autograd.Function):
         trans = np.empty((h, w), np.float32)
         last = np.empty((h, w), np.int32)
         with K.num_threads(lists.num_threads):
-            K.composite_forward(gauss, bg, lists.tile_offsets, lists.flat_ids, w, h, lists.tiles_x, out, trans, last)
+            bins = K.tile_bins(np.diff(lists.tile_offsets))
+            K.composite_forward(gauss, bg, lists.tile_offsets, lists.flat_ids, *bins, w, h, lists.tiles_x, out, trans,
+                                last)
         ctx.gauss, ctx.bg, ctx.lists, ctx.trans, ctx.last = gauss, bg, lists, trans, last
         ctx.num_gaussians, ctx.device = means2d.shape[0], means2d.device
         return torch.from_numpy(out).to(ctx.device), torch.from_numpy(1.0 - trans).to(ctx.device)
@@ -255,7 +257,9 @@ class _CompositeCPU(torch.autograd.Function):
         slots = np.zeros((lists.flat_ids.shape[0], K.NUM_GRADS), np.float32)
         grads = np.zeros((ctx.num_gaussians, K.NUM_GRADS), np.float32)
         with K.num_threads(lists.num_threads):
-            K.composite_backward(ctx.gauss, ctx.bg, lists.tile_offsets, lists.flat_ids, lists.isect_slots,
+            tiles_y = (lists.height + TILE_SIZE - 1) // TILE_SIZE
+            bins = K.tile_bins(K.backward_work(ctx.last, lists.tiles_x, tiles_y))
+            K.composite_backward(ctx.gauss, ctx.bg, lists.tile_offsets, lists.flat_ids, lists.isect_slots, *bins,
                                  lists.width, lists.height, lists.tiles_x, ctx.trans, ctx.last, _np32(grad_channels),
                                  _np32(grad_alpha), slots)
             K.reduce_slots(slots, lists.gauss_offsets, lists.order, grads)

@@ -239,6 +239,24 @@ def test_camera_inside_the_gaussians_is_well_defined():
     assert (out.rgb.double() - ref["rgb"].double()).abs().max() < 1e-5
 
 
+def test_tile_bins_hold_every_tile_once_with_near_equal_work():
+    """The kernels' load balance: each bin is one thread's share; longest-processing-time dealing keeps the
+    heaviest bin within one tile's work of the lightest."""
+    from splatreel import _kernels as K
+
+    rng = np.random.default_rng(3)
+    work = np.zeros(256, np.int64)
+    work[:60] = rng.integers(0, 5000, 60)  # an object in the top rows of the image, as a static split sees it
+    for bins in (1, 2, 3, 8):
+        offsets, tiles = K.balance_tiles(work, bins)
+        assert offsets[0] == 0 and offsets[-1] == 256 and np.array_equal(np.sort(tiles), np.arange(256))
+        loads = [int((work[tiles[a:b]] + K._TILE_OVERHEAD).sum()) for a, b in zip(offsets[:-1], offsets[1:])]
+        assert max(loads) - min(loads) <= work.max() + K._TILE_OVERHEAD
+    last = np.full((40, 40), -1, np.int32)
+    last[3, 20], last[35, 2] = 7, 2  # tiles (0, 1) and (2, 0) of a 3 x 3 grid
+    assert K.backward_work(last, 3, 3).tolist() == [0, 8, 0, 0, 0, 0, 3, 0, 0]
+
+
 # --- GPU path glue (gsplat), checked on the CPU ------------------------------------------------------------------
 def test_torch_binning_matches_kernel_binning():
     from splatreel import _kernels as K

@@ -48,7 +48,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         model = trainer.model()
         with torch.no_grad():
             var_t = model.covariance_4d()[:, 3, 3]
-        g = model.select(alive_at(view.time, model.t_means.detach(), var_t)).slice(view.time)
+        g = model.slice(view.time, rows=alive_at(view.time, model.t_means.detach(), var_t))
         t1 = time.perf_counter()
         out = rasterize(g, view.camera, trainer.bg, sh_degree=cfg.sh_degree)
         t2 = time.perf_counter()

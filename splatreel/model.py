@@ -178,16 +178,48 @@ class Gaussians4D:
         """``[N, 4, 4]`` full covariance in (x, y, z, t)."""
         return covariance_4d(self.scales, self.t_scales, self.quats_l, self.quats_r, self.rotation_convention)
 
-    def slice(self, t: float, sh_degree_t: int | None = None) -> Gaussians3D:
+    def slice(self, t: float, sh_degree_t: int | None = None, rows: Tensor | None = None) -> Gaussians3D:
         """The conditional 3D Gaussians at time `t` (differentiable).
 
         Means move linearly, covariances are the (time-constant) conditional ones, opacities are multiplied by
         the unnormalised temporal marginal, and `visible` is False where that marginal is <= 0.05.
         `sh_degree_t` uses fewer cosine time terms of the colour than the model has (0: none).
+        `rows` (distinct indices) slices only those Gaussians, as ``select(rows).slice(t)`` does, without
+        gathering every tensor first: training slices the Gaussians alive at each image's time.
+
+        Float32 CPU tensors take the fused kernel of `splatreel.slicing` (the same math, one pass); others the
+        torch composition of `splatreel.covariance`.
         """
+        geometry = (self.means, self.t_means, self.log_scales, self.log_t_scales, self.quats_l, self.quats_r)
+        if not all(x.device.type == "cpu" and x.dtype == torch.float32 for x in geometry):
+            return (self if rows is None else self.select(rows))._slice_torch(t, sh_degree_t)
+        from .slicing import slice_geometry  # numba: imported on first use, not with the model
+
+        if rows is None:
+            rows = torch.arange(len(self))
+        means, cov3, velocity, marginal = slice_geometry(*geometry, rows, t, self.rotation_convention)
+        degree_t = self._degree_t(sh_degree_t)
+        coeffs = torch.cat([self.sh_dc[rows], self.sh_rest[rows, : sh.num_sh_coeffs(self.sh_degree, degree_t) - 1]],
+                           1)
+        dt = t - self.t_means[rows] if degree_t else None
+        return Gaussians3D(
+            means=means,
+            covariances=cov3,
+            opacities=torch.sigmoid(self.opacity_logits[rows]) * marginal,
+            sh=coeffs if dt is None else sh.collapse_time(coeffs, self.sh_degree, degree_t, -dt, self.duration),
+            visible=marginal > TEMPORAL_CULL,
+            sh_degree=self.sh_degree,
+            velocities=velocity,
+        )
+
+    def _degree_t(self, sh_degree_t: int | None) -> int:
+        return self.sh_degree_t if sh_degree_t is None else max(0, min(sh_degree_t, self.sh_degree_t))
+
+    def _slice_torch(self, t: float, sh_degree_t: int | None) -> Gaussians3D:
+        """`slice` of every Gaussian as a torch composition (any dtype and device)."""
         cov3, velocity, var_t = condition_on_time(self.covariance_4d())
         means, marginal, dt = self._at_time(t, velocity, var_t)
-        degree_t = self.sh_degree_t if sh_degree_t is None else max(0, min(sh_degree_t, self.sh_degree_t))
+        degree_t = self._degree_t(sh_degree_t)
         coeffs = self.sh_coeffs[:, : sh.num_sh_coeffs(self.sh_degree, degree_t)]
         return Gaussians3D(
             means=means,

@@ -297,7 +297,7 @@ class Trainer:
             view = self._views(factor)[i]
             target, mask = view_target(view, self.ds.background, self.device)
             shown = alive_at(view.time, model.t_means.detach(), var_t)
-            g = model.select(shown).slice(view.time, sh_degree_t=deg_t)
+            g = model.slice(view.time, sh_degree_t=deg_t, rows=shown)
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
             if cfg.densify.enabled:
                 out.means2d.retain_grad()

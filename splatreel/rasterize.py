@@ -10,7 +10,8 @@ Rendering"; graphdeco-inria/diff-gaussian-rasterization ``cuda_rasterizer/forwar
 vendored by fudan-zvg/4d-gaussian-splatting; gsplat ``gsplat/cuda/_torch_impl.py``), with the constants of
 `splatreel.constants`:
 
-1. **Projection** (plain torch, differentiable): world -> camera with the OpenCV ``w2c``; cull at
+1. **Projection** (differentiable; plain torch, or for float32 on the CPU the same math fused in one numba pass,
+   `splatreel.projecting`): world -> camera with the OpenCV ``w2c``; cull at
    ``z <= NEAR_PLANE``; EWA ``Σ2D = J W Σ Wᵀ Jᵀ`` with the Jacobian evaluated at x/z, y/z clamped to
    ``[-(cx/fx + 0.3 tan_fovx), (W - cx)/fx + 0.3 tan_fovx]`` (same for y; 1.3 tan_fov when centred), centres
    ``(fx x/z + cx, fy y/z + cy)`` from the unclamped x, y; ``+EPS2D`` on the diagonal (no opacity
@@ -378,15 +379,23 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
     with torch.no_grad():
         z_all = camera_depths(g.means.detach(), camera)
         front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < FAR_PLANE) & (g.opacities >= ALPHA_THRESHOLD)
-        front_idx = None if bool(front.all()) else front.nonzero()[:, 0]
-    sub = g if front_idx is None else Gaussians3D(
-        means=g.means[front_idx], covariances=g.covariances[front_idx], opacities=g.opacities[front_idx],
-        sh=g.sh[front_idx], visible=g.visible[front_idx], sh_degree=g.sh_degree)
-    proj = project_gaussians(sub.means, sub.covariances, camera)
-    if front_idx is None:
-        means2d = proj.means2d
+    fused = all(x.device.type == "cpu" and x.dtype == torch.float32 for x in (g.means, g.covariances))
+    if fused:  # every row projected in place by the numba kernel (no gather / scatter); culled rows are inert
+        from .projecting import project_fused
+
+        front_idx, sub = None, g
+        means2d, depths, cov2d_all, fused_conics = project_fused(g.means, g.covariances, front, camera)
+        proj = ProjectedGaussians(means2d=means2d, depths=depths, cov2d=cov2d_all)
     else:
-        means2d = torch.zeros((n, 2), dtype=dtype, device=device).index_put((front_idx,), proj.means2d)
+        front_idx = None if bool(front.all()) else front.nonzero()[:, 0]
+        sub = g if front_idx is None else Gaussians3D(
+            means=g.means[front_idx], covariances=g.covariances[front_idx], opacities=g.opacities[front_idx],
+            sh=g.sh[front_idx], visible=g.visible[front_idx], sh_degree=g.sh_degree)
+        proj = project_gaussians(sub.means, sub.covariances, camera)
+        if front_idx is None:
+            means2d = proj.means2d
+        else:
+            means2d = torch.zeros((n, 2), dtype=dtype, device=device).index_put((front_idx,), proj.means2d)
 
     # 2. the rest of the culling and the screen radii, on detached values
     with torch.no_grad():
@@ -394,7 +403,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         xx, xy, yy = cov2d.unbind(-1)
         radii_f = screen_radii(cov2d)
         uv = proj.means2d.detach()
-        keep = ((xx * yy - xy * xy > 0) & (xx > 0) & (yy > 0) & torch.isfinite(radii_f)
+        keep = ((xx * yy - xy * xy > 0) & (xx > 0) & (yy > 0) & torch.isfinite(radii_f) & (front if fused else True)
                 & (uv[:, 0] + radii_f > 0) & (uv[:, 0] - radii_f < camera.width)
                 & (uv[:, 1] + radii_f > 0) & (uv[:, 1] - radii_f < camera.height))
         radii_f = torch.where(keep, radii_f, torch.zeros_like(radii_f))
@@ -408,7 +417,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
     # 3. what the compositor needs, per front Gaussian; culled ones are not in `order` and are never read (an
     #    identity covariance keeps their conic, and its zero gradient, finite)
     safe_cov2d = torch.where(keep[:, None], proj.cov2d, cov2d.new_tensor([1.0, 0.0, 1.0]).expand_as(cov2d))
-    conics = conics_from_cov2d(safe_cov2d)
+    conics = fused_conics if fused else conics_from_cov2d(safe_cov2d)
     campos = torch.as_tensor(camera.position, dtype=dtype, device=device)
     channels = torch.cat([sub.colors(campos, degree=sh_degree), proj.depths[:, None]], -1)
     opacities = sub.opacities

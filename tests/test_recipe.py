@@ -95,6 +95,18 @@ def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):
     assert exc.value.code == 2 and "expected a number from 0 to 1" in capsys.readouterr().err
 
 
+def test_an_image_whose_time_has_no_live_gaussians_reports_a_finite_loss(floor, tmp_path):
+    """The scale-ratio term of one camera per time averaged over no Gaussians was NaN in the reported loss."""
+    ds = load_dataset(floor)
+    cfg, _ = auto_recipe(read_traits(ds))
+    cfg = dataclasses.replace(cfg.scaled(4), minutes=None, num_gaussians=500, batch_size=1)
+    tr = Trainer(ds, cfg, tmp_path / "e.safetensors", progress=False)
+    with torch.no_grad():
+        tr.params["t_means"][:] = ds.train[0].time + 10.0  # nobody alive at any training time
+    loss, _ = tr.train_step()
+    assert cfg.lambda_scale_ratio > 0 and np.isfinite(loss)
+
+
 def test_data_without_alpha_is_an_open_scene(matrix):
     ds = load_dataset(matrix)
     ds.train = [dataclasses.replace(v, alpha=None) for v in ds.train]

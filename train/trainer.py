@@ -310,7 +310,7 @@ class Trainer:
                     self._nbr = knn(self.params["means"].detach(), k=8)
                 velocities = condition_on_time(model.covariance_4d())[1]
                 loss = loss + cfg.smooth_weight * smoothness_loss(velocities, *self._nbr)
-            if cfg.lambda_scale_ratio:
+            if cfg.lambda_scale_ratio and len(shown):  # the mean over no Gaussians would be NaN
                 loss = loss + cfg.lambda_scale_ratio * scale_ratio_loss(self.params["log_scales"][shown],
                                                                         cfg.max_scale_ratio)
             (loss / cfg.batch_size).backward()

@@ -13,8 +13,9 @@ axis ratio is above 10), the decisions of the recipe, what the alpha-agreement t
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.
 
-`step` is the breakdown of one training step (one image at full resolution, the final model) into slicing,
-rasterizer forward, losses, backward and Adam, in milliseconds.
+`step` is the breakdown of the work per training image (full resolution, the final model) into slicing,
+rasterizer forward, losses, backward and Adam, in milliseconds; a step renders `--batch-size` images, and what it does
+once (finding the live Gaussians, the Adam update) is shared out among them.
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ from pathlib import Path
 
 
 def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
-    """Milliseconds per phase of a training step (one image, full resolution, the trainer's current model). Call it
-    after the model was saved and scored: the timed steps update it."""
+    """Milliseconds per phase of the work per training image (full resolution, the trainer's current model; what a
+    step does once is shared out among its images). Call it after the model was saved and scored: the timed steps
+    update it."""
     import torch
 
     from splatreel.train.evaluate import view_target
@@ -48,6 +50,8 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         model = trainer.model()
         with torch.no_grad():
             var_t = model.covariance_4d()[:, 3, 3]
+        t_var = time.perf_counter() - t  # the trainer finds the live Gaussians once per step, not per image
+        t = time.perf_counter() - t_var / cfg.batch_size
         g = model.slice(view.time, rows=alive_at(view.time, model.t_means.detach(), var_t))
         t1 = time.perf_counter()
         out = rasterize(g, view.camera, trainer.bg, sh_degree=cfg.sh_degree)
@@ -61,7 +65,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         trainer.optimizer.step()  # after the model was saved and scored: these steps change nothing reported
         t5 = time.perf_counter()
         trainer.optimizer.zero_grad(set_to_none=True)
-        for k, dt in zip(phases, (t1 - t, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
+        for k, dt in zip(phases, (t1 - t, t2 - t1, t3 - t2, t4 - t3, (t5 - t4) / cfg.batch_size)):
             phases[k] += 1000.0 * dt / repeats
     return {k: round(v, 1) for k, v in phases.items()}
 
@@ -150,7 +154,7 @@ def main() -> None:
               f"{r['nearest_image_psnr']:>9.2f}"
               f"{r['median_image_psnr']:>8.2f}{100 * r['needle_share']:>8.2f}%")
     if args.profile_steps:
-        print("\nstep breakdown, ms (one image, full resolution, final model)")
+        print("\nstep breakdown, ms per training image (full resolution, final model; Adam shared out over the batch)")
         keys = list(rows[0]["step"]) if rows else []
         print(f"{'sample':<9}" + "".join(f"{k:>16}" for k in keys) + f"{'total':>10}")
         for r in rows:

@@ -184,7 +184,7 @@ class Gaussians4D:
         Means move linearly, covariances are the (time-constant) conditional ones, opacities are multiplied by
         the unnormalised temporal marginal, and `visible` is False where that marginal is <= 0.05.
         `sh_degree_t` uses fewer cosine time terms of the colour than the model has (0: none).
-        `rows` (distinct indices) slices only those Gaussians, as ``select(rows).slice(t)`` does, without
+        `rows` (distinct indices, or a bool mask) slices only those Gaussians, as ``select(rows).slice(t)`` does, without
         gathering every tensor first: training slices the Gaussians alive at each image's time.
 
         Float32 CPU tensors take the fused kernel of `splatreel.slicing` (the same math, one pass); others the
@@ -197,6 +197,8 @@ class Gaussians4D:
 
         if rows is None:
             rows = torch.arange(len(self))
+        elif rows.dtype == torch.bool:
+            rows = rows.nonzero()[:, 0]
         means, cov3, velocity, marginal = slice_geometry(*geometry, rows, t, self.rotation_convention)
         degree_t = self._degree_t(sh_degree_t)
         coeffs = torch.cat([self.sh_dc[rows], self.sh_rest[rows, : sh.num_sh_coeffs(self.sh_degree, degree_t) - 1]],

@@ -57,3 +57,6 @@ def test_fused_slice_of_every_gaussian_equals_slicing_a_selection():
     part = model.slice(0.6, rows=rows)
     for name in ("means", "covariances", "opacities", "sh", "visible"):
         assert torch.equal(getattr(whole, name)[rows], getattr(part, name)), name
+    mask = torch.zeros(120, dtype=torch.bool)
+    mask[rows] = True
+    assert torch.equal(model.slice(0.6, rows=mask).means, whole.means[mask])  # a mask, not indices 0 and 1

@@ -48,7 +48,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert traits.views_per_time == 4 and not traits.one_view_per_time
     assert traits.has_alpha and not traits.open_backdrop and traits.point_cloud is None
     cfg, decisions = auto_recipe(traits)
-    assert cfg.preset == "auto" and cfg.minutes == 4.0 and cfg.init == "ball"
+    assert cfg.preset == "auto" and cfg.minutes == 5.0 and cfg.init == "ball"
     assert cfg.lambda_scale_ratio == 0.0 and cfg.densify.enabled and cfg.densify.budget_curve
     assert cfg.resolution_ramp == ()  # 64 px: nothing to gain from coarser images
     assert cfg.batch_size == 8 and cfg.static_share == 0.0

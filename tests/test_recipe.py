@@ -68,7 +68,7 @@ def test_one_camera_per_time_over_a_floor(floor):
     assert "one camera per time" in text and "floor or backdrop" in text and "--init" in text
     long_clip, _ = auto_recipe(dataclasses.replace(traits, frames=96, images=96))
     assert long_clip.t_scale_init_frames == pytest.approx(9.5)  # a tenth of the clip
-    assert long_clip.batch_size == cfg.batch_size == preset("efficient4d").batch_size
+    assert long_clip.batch_size == cfg.batch_size == 8 and "8 images per step" in text
 
 
 def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):

@@ -183,6 +183,13 @@ class Camera:
         p = np.stack([(uv[:, 0] - self.cx) / self.fx * z, (uv[:, 1] - self.cy) / self.fy * z, z], -1)
         return p @ self.c2w[:3, :3].T + self.c2w[:3, 3]
 
+    def ray_limits(self, slack: float = 0.0) -> tuple[float, float, float, float]:
+        """(x lo, x hi, y lo, y hi): the range of x/z and y/z (camera space) the image covers, each side widened by
+        `slack` times half the image's width (height) in those units; the EWA Jacobian's clamp uses slack 0.3."""
+        sx, sy = slack * 0.5 * self.width / self.fx, slack * 0.5 * self.height / self.fy
+        return (-(self.cx / self.fx + sx), (self.width - self.cx) / self.fx + sx,
+                -(self.cy / self.fy + sy), (self.height - self.cy) / self.fy + sy)
+
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera rendering `width` x `height` pixels (intrinsics scaled per axis)."""
         sx, sy = width / self.width, height / self.height

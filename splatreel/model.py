@@ -200,34 +200,29 @@ class Gaussians4D:
         elif rows.dtype == torch.bool:
             rows = rows.nonzero()[:, 0]
         means, cov3, velocity, marginal = slice_geometry(*geometry, rows, t, self.rotation_convention)
-        degree_t = self._degree_t(sh_degree_t)
-        coeffs = torch.cat([self.sh_dc[rows], self.sh_rest[rows, : sh.num_sh_coeffs(self.sh_degree, degree_t) - 1]],
-                           1)
-        dt = t - self.t_means[rows] if degree_t else None
-        return Gaussians3D(
-            means=means,
-            covariances=cov3,
-            opacities=torch.sigmoid(self.opacity_logits[rows]) * marginal,
-            sh=coeffs if dt is None else sh.collapse_time(coeffs, self.sh_degree, degree_t, -dt, self.duration),
-            visible=marginal > TEMPORAL_CULL,
-            sh_degree=self.sh_degree,
-            velocities=velocity,
-        )
-
-    def _degree_t(self, sh_degree_t: int | None) -> int:
-        return self.sh_degree_t if sh_degree_t is None else max(0, min(sh_degree_t, self.sh_degree_t))
+        return self._sliced(t, sh_degree_t, rows, means, cov3, velocity, marginal)
 
     def _slice_torch(self, t: float, sh_degree_t: int | None) -> Gaussians3D:
         """`slice` of every Gaussian as a torch composition (any dtype and device)."""
         cov3, velocity, var_t = condition_on_time(self.covariance_4d())
-        means, marginal, dt = self._at_time(t, velocity, var_t)
-        degree_t = self._degree_t(sh_degree_t)
-        coeffs = self.sh_coeffs[:, : sh.num_sh_coeffs(self.sh_degree, degree_t)]
+        means, marginal, _ = self._at_time(t, velocity, var_t)
+        return self._sliced(t, sh_degree_t, None, means, cov3, velocity, marginal)
+
+    def _sliced(self, t: float, sh_degree_t: int | None, rows: Tensor | None, means: Tensor, cov3: Tensor,
+                velocity: Tensor, marginal: Tensor) -> Gaussians3D:
+        """The `Gaussians3D` of rows `rows` (None: all) from their sliced geometry: opacity times the marginal, colour
+        collapsed to time `t`."""
+        def pick(x: Tensor) -> Tensor:
+            return x if rows is None else x[rows]
+
+        degree_t = self.sh_degree_t if sh_degree_t is None else max(0, min(sh_degree_t, self.sh_degree_t))
+        coeffs = torch.cat([pick(self.sh_dc), pick(self.sh_rest)[:, : sh.num_sh_coeffs(self.sh_degree, degree_t) - 1]],
+                           1)
         return Gaussians3D(
             means=means,
             covariances=cov3,
-            opacities=self.opacities * marginal,
-            sh=sh.collapse_time(coeffs, self.sh_degree, degree_t, -dt, self.duration),
+            opacities=torch.sigmoid(pick(self.opacity_logits)) * marginal,
+            sh=sh.collapse_time(coeffs, self.sh_degree, degree_t, pick(self.t_means) - t, self.duration),
             visible=marginal > TEMPORAL_CULL,
             sh_degree=self.sh_degree,
             velocities=velocity,

@@ -167,12 +167,9 @@ def project_backward(means, cov, front, w2c, intr, lim, conics, grad_means2d, gr
 
 def camera_arrays(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(w2c ``[3, 4]``, (fx, fy, cx, cy), Jacobian limits (x lo, x hi, y lo, y hi)) as float32 arrays."""
-    fx, fy, cx, cy, w, h = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height
-    slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * w / fx
-    slack_y = (FRUSTUM_CLAMP - 1.0) * 0.5 * h / fy
-    lim = (-(cx / fx + slack_x), (w - cx) / fx + slack_x, -(cy / fy + slack_y), (h - cy) / fy + slack_y)
     return (np.ascontiguousarray(np.asarray(camera.w2c, np.float64)[:3], dtype=np.float32),
-            np.array([fx, fy, cx, cy], np.float32), np.array(lim, np.float32))
+            np.array([camera.fx, camera.fy, camera.cx, camera.cy], np.float32),
+            np.array(camera.ray_limits(FRUSTUM_CLAMP - 1.0), np.float32))
 
 
 def _np(x: Tensor) -> np.ndarray:

@@ -111,12 +111,10 @@ def project_gaussians(means: Tensor, covariances: Tensor, camera: Camera) -> Pro
     x, y, z = p.unbind(-1)
     s = rot @ covariances @ rot.T  # camera-space covariances
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
-    w, h = camera.width, camera.height
     # Jacobian clamp: bounded footprints for Gaussians far outside the frustum (1.3 tan_fov when centred)
-    slack_x = (FRUSTUM_CLAMP - 1.0) * 0.5 * w / fx
-    slack_y = (FRUSTUM_CLAMP - 1.0) * 0.5 * h / fy
-    tx = z * (x / z).clamp(-(cx / fx + slack_x), (w - cx) / fx + slack_x)
-    ty = z * (y / z).clamp(-(cy / fy + slack_y), (h - cy) / fy + slack_y)
+    x_lo, x_hi, y_lo, y_hi = camera.ray_limits(FRUSTUM_CLAMP - 1.0)
+    tx = z * (x / z).clamp(x_lo, x_hi)
+    ty = z * (y / z).clamp(y_lo, y_hi)
     # J = [[j00, 0, j02], [0, j11, j12]]; Σ2D = J S Jᵀ written out (J is sparse)
     j00, j11 = fx / z, fy / z
     j02, j12 = -fx * tx / (z * z), -fy * ty / (z * z)

@@ -56,6 +56,8 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     text = decisions_text(decisions)
     assert "image matrix" in text and "a bounded object" in text and "--minutes" in text
     assert "8 images per step" in text and "--batch-size" in text
+    assert cfg.clip_duration == 5.0 and cfg.lr_quats_final == pytest.approx(0.1 * cfg.lr_quats)
+    assert "time units long" in text and "--clip-duration" in text
 
 
 def test_one_camera_per_time_over_a_floor(floor):
@@ -69,6 +71,9 @@ def test_one_camera_per_time_over_a_floor(floor):
     long_clip, _ = auto_recipe(dataclasses.replace(traits, frames=96, images=96))
     assert long_clip.t_scale_init_frames == pytest.approx(9.5)  # a tenth of the clip
     assert long_clip.batch_size == cfg.batch_size == 8 and "8 images per step" in text
+    assert cfg.clip_duration == 5.0 and "--clip-duration" in text
+    single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
+    assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
 
 
 def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):
@@ -78,7 +83,7 @@ def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):
     cfg, _ = auto_recipe(read_traits(ds))
     cfg = dataclasses.replace(cfg.scaled(2), minutes=None, num_gaussians=2000, static_share=0.25)
     tr = Trainer(ds, cfg, tmp_path / "s.safetensors", progress=False)
-    t0, t1 = ds.time_range
+    t0, t1 = tr.ds.time_range  # the trainer's own time axis (time_axis)
     model = tr.model().detach()
     static = torch.isclose(model.log_t_scales.exp(), torch.tensor(t1 - t0))
     assert abs(int(static.sum()) - 500) <= 1

@@ -117,6 +117,9 @@ class TrainConfig:
     lr_opacity: float = 0.05
     lr_scales: float = 5e-3
     lr_quats: float = 1e-3
+    #: When set, the rotations' rate decays exponentially from lr_quats to this over the run, as the means' does:
+    #: on a stretched time axis (`clip_duration`) a small turn of a rotation is a large change of velocity.
+    lr_quats_final: float | None = None
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     #: Time budget in minutes (None: run `iters` steps). With a budget the run ends on time and every schedule
     #: (learning-rate decay, resolution ramp, densification window, SH ramp) follows the elapsed share of the
@@ -126,6 +129,10 @@ class TrainConfig:
     #: nerfstudio's splatfacto: mean(max(s_max / s_min, r) - r)); 0: off. Fights needles that fit one view.
     lambda_scale_ratio: float = 0.0
     max_scale_ratio: float = 10.0
+    #: Length of the clip on the trainer's time axis: the dataset's times are stretched so that the clip spans this
+    #: many units while training (the same motion is then a smaller tilt of a 4D Gaussian, `time_axis`); checkpoints
+    #: stay on the dataset's times. None: the dataset's own units.
+    clip_duration: float | None = None
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

@@ -35,6 +35,7 @@ from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import dssim, l1, psnr
+from .time_axis import TimeAxis, model_on_dataset_time, retime_model, retimed_dataset
 
 PARAM_NAMES = Gaussians4D.TENSORS
 
@@ -52,11 +53,19 @@ def pick_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def mean_lr(step: float, cfg: TrainConfig, extent: float) -> float:
-    """Exponential decay from lr_means to lr_means_final over the run (official `get_expon_lr_func`)."""
-    u = min(max(step / max(cfg.iters, 1), 0.0), 1.0)
-    lr0, lr1 = cfg.lr_means * extent, cfg.lr_means_final * extent
+def decayed_lr(step: float, iters: int, lr0: float, lr1: float) -> float:
+    """Exponential decay from lr0 to lr1 over `iters` steps (official `get_expon_lr_func`)."""
+    u = min(max(step / max(iters, 1), 0.0), 1.0)
     return math.exp((1 - u) * math.log(lr0) + u * math.log(lr1))
+
+
+def scheduled_lrs(step: float, cfg: TrainConfig, extent: float) -> dict[str, float]:
+    """The learning rates that change over the run: the means' (scaled by the scene extent) and, when
+    `lr_quats_final` is set, the rotations'."""
+    out = {"means": decayed_lr(step, cfg.iters, cfg.lr_means * extent, cfg.lr_means_final * extent)}
+    if cfg.lr_quats_final:
+        out["quats_l"] = out["quats_r"] = decayed_lr(step, cfg.iters, cfg.lr_quats, cfg.lr_quats_final)
+    return out
 
 
 def active_sh(step: float, cfg: TrainConfig) -> tuple[int, int]:
@@ -108,7 +117,11 @@ class Trainer:
 
     def __init__(self, dataset: Dataset, config: TrainConfig, out: str | os.PathLike, resume: bool = False,
                  force: bool = False, progress: bool = True, started: float | None = None):
-        self.ds, self.cfg, self.out, self.progress = dataset, config, Path(out), progress
+        self.cfg, self.out, self.progress = config, Path(out), progress
+        # the trainer works on its own time axis (time_axis); checkpoints go back to the dataset's times
+        self.source = dataset
+        self.axis = TimeAxis.for_clip(dataset.time_range, config.clip_duration)
+        self.ds = dataset = retimed_dataset(dataset, self.axis)
         self.device = pick_device(config.device)
         self.bg = torch.tensor(dataset.background, dtype=torch.float32, device=self.device)
         _, cam_radius = dataset.camera_centre_and_radius()
@@ -182,10 +195,10 @@ class Trainer:
         cfg = self.cfg
         self.params = {k: torch.nn.Parameter(raw[k].to(self.device, torch.float32).contiguous())
                        for k in PARAM_NAMES}
-        lrs = {"means": mean_lr(0, cfg, self.extent), "t_means": cfg.lr_t_means * self.extent,
+        lrs = {"means": 0.0, "t_means": cfg.lr_t_means * self.extent * self.axis.scale,
                "log_scales": cfg.lr_scales, "log_t_scales": cfg.lr_scales, "quats_l": cfg.lr_quats,
                "quats_r": cfg.lr_quats, "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc,
-               "sh_rest": cfg.lr_sh_rest}
+               "sh_rest": cfg.lr_sh_rest, **scheduled_lrs(0, cfg, self.extent)}
         self.optimizer = torch.optim.Adam([{"params": [self.params[k]], "lr": lrs[k], "name": k}
                                            for k in PARAM_NAMES], lr=0.0, eps=1e-15)
 
@@ -200,7 +213,11 @@ class Trainer:
             st = torch.load(sp, map_location="cpu", weights_only=True)
         except Exception as exc:
             raise CheckpointError(f"{sp}: unreadable training state ({str(exc).strip().splitlines()[0]})") from None
-        self._make_optimizer(ck.model.tensors())
+        # the parameters on the training time axis, stored as they were: a re-timed checkpoint would factor the
+        # covariances afresh and no longer match the optimizer's moments
+        raw = st.get("params") or retime_model(ck.model, self.axis.scale,
+                                               -self.axis.scale * self.axis.origin).tensors()
+        self._make_optimizer(raw)
         self.optimizer.load_state_dict(st["optimizer"])
         self.generator.set_state(st["generator"])
         self.step = int(st["step"])
@@ -282,9 +299,9 @@ class Trainer:
     def train_step(self) -> tuple[float, float]:
         cfg = self.cfg
         v = self.vstep()  # one schedule position for the whole step
+        lrs = scheduled_lrs(v, cfg, self.extent)
         for g in self.optimizer.param_groups:
-            if g["name"] == "means":
-                g["lr"] = mean_lr(v, cfg, self.extent)
+            g["lr"] = lrs.get(g["name"], g["lr"])
         deg, deg_t = active_sh(v, cfg)
         factor = self._resolution_factor(v)
         static = v < cfg.static_iters
@@ -373,9 +390,10 @@ class Trainer:
     # --- output ---------------------------------------------------------------------------------------------
     def save(self) -> None:
         """Write the checkpoint and the resumable state beside it (both atomically)."""
-        model = Gaussians4D(**{k: v.detach().cpu() for k, v in self.params.items()},
-                            sh_degree=self.cfg.sh_degree, sh_degree_t=self.cfg.sh_degree_t,
-                            time_range=self.time_range, rotation_convention=self.cfg.rotation_convention)
+        trained = {k: v.detach().cpu() for k, v in self.params.items()}
+        model = model_on_dataset_time(Gaussians4D(**trained, sh_degree=self.cfg.sh_degree,
+                                                  sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
+                                                  rotation_convention=self.cfg.rotation_convention), self.axis)
         found = self.alpha_conflicts
         training = {**self.cfg.to_dict(), "iteration": self.step, "dataset": str(self.ds.root),
                     "layout": self.ds.layout, "background_reason": self.ds.background_reason,
@@ -385,10 +403,12 @@ class Trainer:
                         provenance={"tool": "splatreel train", "preset": self.cfg.preset, "up_axis": self.ds.up},
                         training=training,
                         views=[DatasetView(relative_name(v.name, self.ds.root), v.camera, v.time)
-                               for v in self.ds.train])
+                               for v in self.source.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
                  "elapsed": self.elapsed(), "n_initial": self.n_initial,
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()}}
+        if not self.axis.identity:
+            state["params"] = trained
         with atomic_path(state_path(self.out), force=True) as tmp:
             torch.save(state, tmp)
 

@@ -127,7 +127,7 @@ def main() -> None:
             res = tr.run()
             seconds = time.perf_counter() - t  # includes the alpha test, confidence maps and set-up
             ev = tr.evaluate_test()
-            on_black = evaluate(tr.model().detach(), ds.test, (0.0, 0.0, 0.0), progress=False)["psnr"]
+            on_black = evaluate(tr.dataset_model(), ds.test, (0.0, 0.0, 0.0), progress=False)["psnr"]
             base = baselines(ds.test, ds.train, ds.background)
             bound = upper_bound(name, ds)
             rows.append({"sample": name, "regime": "one camera per time" if traits.one_view_per_time

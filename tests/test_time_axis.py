@@ -65,6 +65,8 @@ def test_checkpoint_is_on_the_dataset_times(tiny, tmp_path):
     ck = load_checkpoint(tmp_path / "m.safetensors")
     assert ck.model.time_range == pytest.approx(ds.time_range)
     assert [v.time for v in ck.views] == pytest.approx([v.time for v in ds.train])
+    for k, v in trainer.dataset_model().tensors().items():
+        torch.testing.assert_close(v, ck.model.tensors()[k], rtol=0, atol=0)
     inner = trainer.model().detach()
     for v, u in zip(ds.train[:3], trainer.ds.train[:3]):
         assert_same_slice(ck.model.slice(v.time), inner.slice(u.time), rtol=2e-4, atol=2e-5)

@@ -250,9 +250,18 @@ class Trainer:
 
     # --- one step -------------------------------------------------------------------------------------------
     def model(self) -> Gaussians4D:
+        """The model being trained, on the trainer's own time axis (`self.ds`'s times; see `dataset_model`)."""
         cfg = self.cfg
         return Gaussians4D(**self.params, sh_degree=cfg.sh_degree, sh_degree_t=cfg.sh_degree_t,
                            time_range=self.time_range, rotation_convention=cfg.rotation_convention)
+
+    def dataset_model(self, trained: dict[str, torch.Tensor] | None = None) -> Gaussians4D:
+        """The model on the dataset's times (what the checkpoint holds; `model` is on the trainer's own axis), from
+        `trained` (default: the current parameters)."""
+        trained = trained or {k: v.detach().cpu() for k, v in self.params.items()}
+        return model_on_dataset_time(Gaussians4D(**trained, sh_degree=self.cfg.sh_degree,
+                                                 sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
+                                                 rotation_convention=self.cfg.rotation_convention), self.axis)
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
@@ -391,9 +400,7 @@ class Trainer:
     def save(self) -> None:
         """Write the checkpoint and the resumable state beside it (both atomically)."""
         trained = {k: v.detach().cpu() for k, v in self.params.items()}
-        model = model_on_dataset_time(Gaussians4D(**trained, sh_degree=self.cfg.sh_degree,
-                                                  sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
-                                                  rotation_convention=self.cfg.rotation_convention), self.axis)
+        model = self.dataset_model(trained)
         found = self.alpha_conflicts
         training = {**self.cfg.to_dict(), "iteration": self.step, "dataset": str(self.ds.root),
                     "layout": self.ds.layout, "background_reason": self.ds.background_reason,
@@ -450,7 +457,8 @@ class Trainer:
                            ema_psnr or float("nan"), self.losses)
 
     def evaluate_test(self) -> dict | None:
-        if not self.ds.test:
+        """Scores of the model as the checkpoint holds it (on the dataset's times) at the test views."""
+        if not self.source.test:
             return None
-        return evaluate(self.model().detach(), self.ds.test, self.ds.background, self.device,
+        return evaluate(self.dataset_model().to(self.device), self.source.test, self.source.background, self.device,
                         progress=self.progress)

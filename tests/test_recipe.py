@@ -64,7 +64,7 @@ def test_one_camera_per_time_over_a_floor(floor):
     traits = read_traits(load_dataset(floor))
     assert traits.one_view_per_time and traits.open_backdrop
     cfg, decisions = auto_recipe(traits)
-    assert cfg.minutes == 3.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
+    assert cfg.minutes == 10.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
     assert cfg.t_scale_init_frames == preset("efficient4d").t_scale_init_frames  # 12 frames: a tenth is less
     text = decisions_text(decisions)
     assert "one camera per time" in text and "floor or backdrop" in text and "--init" in text

@@ -9,7 +9,8 @@ import torch
 from splatreel.checkpoint import load_checkpoint
 from splatreel.train.config import preset
 from splatreel.train.data import load_dataset
-from splatreel.train.time_axis import TimeAxis, model_on_dataset_time, retime_model, retimed_dataset
+from splatreel.train.time_axis import (TimeAxis, model_on_dataset_time, model_on_training_time, retime_model,
+                                      retimed_dataset)
 from splatreel.train.trainer import Trainer
 
 from test_model import random_model
@@ -47,7 +48,7 @@ def test_back_to_dataset_time_round_trip():
     model = random_model(32, "current")
     axis = TimeAxis.for_clip((0.2, 0.7), 5.0)
     assert axis.to_training(0.2) == 0.0 and axis.to_training(0.7) == pytest.approx(5.0)
-    back = model_on_dataset_time(retime_model(model, axis.scale, -axis.scale * axis.origin), axis)
+    back = model_on_dataset_time(model_on_training_time(model, axis), axis)
     for t in (0.2, 0.45):
         assert_same_slice(model._slice_torch(t, None), back._slice_torch(t, None))
 
@@ -75,6 +76,7 @@ def test_checkpoint_is_on_the_dataset_times(tiny, tmp_path):
 def test_retimed_dataset_shares_the_images(tiny):
     ds = load_dataset(tiny)
     moved = retimed_dataset(ds, TimeAxis(origin=0.0, scale=3.0))
-    assert moved.train[1].image is ds.train[1].image
-    assert moved.train[1].time == pytest.approx(3.0 * ds.train[1].time)
-    assert ds.train[1].time != moved.train[1].time or ds.train[1].time == 0.0
+    last = ds.train[-1]
+    assert last.time > 0 and moved.train[-1].image is last.image
+    assert moved.train[-1].time == pytest.approx(3.0 * last.time)
+    assert [v.time for v in moved.test] == pytest.approx([3.0 * v.time for v in ds.test])

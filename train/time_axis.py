@@ -6,7 +6,8 @@ Why: a native 4D Gaussian moves by tilting its 4D covariance towards the time ax
 turn for a given motion depends on the unit of time. With D-NeRF's clip of one time unit, a box that turns 24°
 between frames needs tilts near 60°, which 500 Adam steps on the rotation quaternions do not reach: the
 Gaussians fade between frames instead of moving, and in-between times show two half-transparent copies.
-Efficient4D's released code trains on frame numbers (0..15), a clip of 15 units, where the same motion is a tilt of a few degrees.
+Efficient4D's released code trains on frame numbers (0..15), a clip of 15 units, where the same motion is a tilt
+of a few degrees.
 Between the two, a clip of about 5 units scored best on the procedural samples (README, "What the default recipe
 decides").
 
@@ -50,9 +51,6 @@ class TimeAxis:
     def to_training(self, t: float) -> float:
         return self.scale * (t - self.origin)
 
-    def to_dataset(self, t: float) -> float:
-        return t / self.scale + self.origin
-
 
 def retimed_dataset(ds: Dataset, axis: TimeAxis) -> Dataset:
     """`ds` with every training and test image's time on `axis` (images shared, not copied)."""
@@ -73,8 +71,14 @@ def retime_model(model: Gaussians4D, scale: float, shift: float) -> Gaussians4D:
     tiny = torch.finfo(torch.float64).tiny
     t0, t1 = model.time_range
     return replace(model, t_means=(scale * model.t_means.detach().double() + shift).to(dtype),
-                   log_scales=scales.clamp_min(tiny).log().to(dtype), log_t_scales=scale_t.clamp_min(tiny).log().to(dtype),
-                   quats_l=q_l.to(dtype), quats_r=q_r.to(dtype), time_range=(scale * t0 + shift, scale * t1 + shift))
+                   log_scales=scales.clamp_min(tiny).log().to(dtype),
+                   log_t_scales=scale_t.clamp_min(tiny).log().to(dtype), quats_l=q_l.to(dtype), quats_r=q_r.to(dtype),
+                   time_range=(scale * t0 + shift, scale * t1 + shift))
+
+
+def model_on_training_time(model: Gaussians4D, axis: TimeAxis) -> Gaussians4D:
+    """A model on the dataset's times, on `axis` (the inverse of `model_on_dataset_time`)."""
+    return retime_model(model, axis.scale, -axis.scale * axis.origin)
 
 
 def model_on_dataset_time(model: Gaussians4D, axis: TimeAxis) -> Gaussians4D:

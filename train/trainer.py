@@ -35,7 +35,7 @@ from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import dssim, l1, psnr
-from .time_axis import TimeAxis, model_on_dataset_time, retime_model, retimed_dataset
+from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
 PARAM_NAMES = Gaussians4D.TENSORS
 
@@ -195,7 +195,7 @@ class Trainer:
         cfg = self.cfg
         self.params = {k: torch.nn.Parameter(raw[k].to(self.device, torch.float32).contiguous())
                        for k in PARAM_NAMES}
-        lrs = {"means": 0.0, "t_means": cfg.lr_t_means * self.extent * self.axis.scale,
+        lrs = {"t_means": cfg.lr_t_means * self.extent * self.axis.scale,
                "log_scales": cfg.lr_scales, "log_t_scales": cfg.lr_scales, "quats_l": cfg.lr_quats,
                "quats_r": cfg.lr_quats, "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc,
                "sh_rest": cfg.lr_sh_rest, **scheduled_lrs(0, cfg, self.extent)}
@@ -215,8 +215,7 @@ class Trainer:
             raise CheckpointError(f"{sp}: unreadable training state ({str(exc).strip().splitlines()[0]})") from None
         # the parameters on the training time axis, stored as they were: a re-timed checkpoint would factor the
         # covariances afresh and no longer match the optimizer's moments
-        raw = st.get("params") or retime_model(ck.model, self.axis.scale,
-                                               -self.axis.scale * self.axis.origin).tensors()
+        raw = st.get("params") or model_on_training_time(ck.model, self.axis).tensors()
         self._make_optimizer(raw)
         self.optimizer.load_state_dict(st["optimizer"])
         self.generator.set_state(st["generator"])

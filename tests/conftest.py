@@ -1,4 +1,4 @@
-"""Fixtures shared by the sample tests."""
+"""Fixtures shared by several test modules."""
 
 import pytest
 
@@ -31,3 +31,14 @@ def round_trip_psnrs(original_path, returned_path, times=(0.25, 0.6)) -> list[fl
         b = render_image(b_model, cam, t, look)[..., :3]
         out.append(float(-10 * np.log10(np.mean((a - b) ** 2))))
     return out
+
+
+@pytest.fixture(scope="session")
+def small_floor(tmp_path_factory):
+    """An opaque floor to the horizon, one camera per time: 12 frames at 48 px (no camera films two consecutive
+    frames)."""
+    from splatreel.samples import FloorConfig, write_dataset
+
+    root = tmp_path_factory.mktemp("data") / "floor"
+    write_dataset("floor", root, FloorConfig(frames=12, size=48, test_views=2))
+    return root

@@ -30,13 +30,8 @@ def matrix(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def floor(tmp_path_factory):
-    """An opaque floor to the horizon, one camera per time: 12 frames at 48 px."""
-    from splatreel.samples import FloorConfig, write_dataset
-
-    root = tmp_path_factory.mktemp("data") / "floor"
-    write_dataset("floor", root, FloorConfig(frames=12, size=48, test_views=2))
-    return root
+def floor(small_floor):
+    return small_floor
 
 
 def decisions_text(decisions) -> str:
@@ -58,6 +53,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert "8 images per step" in text and "--batch-size" in text
     assert cfg.clip_duration == 5.0 and cfg.lr_quats_final == pytest.approx(0.1 * cfg.lr_quats)
     assert "time units long" in text and "--clip-duration" in text
+    assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
 
 
 def test_one_camera_per_time_over_a_floor(floor):
@@ -72,6 +68,7 @@ def test_one_camera_per_time_over_a_floor(floor):
     assert long_clip.t_scale_init_frames == pytest.approx(9.5)  # a tenth of the clip
     assert long_clip.batch_size == cfg.batch_size == 8 and "8 images per step" in text
     assert cfg.clip_duration == 5.0 and "--clip-duration" in text
+    assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
     single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
 

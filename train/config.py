@@ -133,6 +133,10 @@ class TrainConfig:
     #: many units while training (the same motion is then a smaller tilt of a 4D Gaussian, `time_axis`); checkpoints
     #: stay on the dataset's times. None: the dataset's own units.
     clip_duration: float | None = None
+    #: Share of the run (0-1) at which every Gaussian's velocity is set once from the optical flow between each
+    #: camera's consecutive frames, lifted to 3D by the model's depth (`train.motion`); 0: never. Needs cameras that
+    #: film consecutive frames (an image matrix).
+    flow_motion_at: float = 0.0
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

@@ -13,7 +13,7 @@ from pathlib import Path
 from splatreel.datasets import Dataset, DatasetImage, read_dataset
 from splatreel.errors import DatasetError
 
-__all__ = ["downscale_view", "load_dataset", "relative_name"]
+__all__ = ["camera_videos", "downscale_view", "load_dataset", "relative_name"]
 
 
 def downscale_view(view: DatasetImage, factor: int) -> DatasetImage:
@@ -27,6 +27,29 @@ def downscale_view(view: DatasetImage, factor: int) -> DatasetImage:
     image = cv2.resize(view.image, (nw, nh), interpolation=cv2.INTER_AREA)
     alpha = None if view.alpha is None else cv2.resize(view.alpha, (nw, nh), interpolation=cv2.INTER_AREA)
     return replace(view, image=image, alpha=alpha, camera=view.camera.resized(nw, nh))
+
+
+def camera_videos(ds: Dataset) -> list[list[int]]:
+    """Training images grouped by camera (``view_id``), each group ordered by time and cut into runs of consecutive
+    frames of at least two: the videos whose frame-to-frame flow means motion."""
+    rank = {t: k for k, t in enumerate(ds.frame_times)}
+    by_view: dict[int, list[int]] = {}
+    for i, v in enumerate(ds.train):
+        by_view.setdefault(v.view_id, []).append(i)
+    videos = []
+    for idx in by_view.values():
+        idx = sorted(idx, key=lambda i: ds.train[i].time)
+        run = [idx[0]]
+        for i in idx[1:]:
+            if rank[ds.train[i].time] == rank[ds.train[run[-1]].time] + 1:
+                run.append(i)
+            else:
+                if len(run) > 1:
+                    videos.append(run)
+                run = [i]
+        if len(run) > 1:
+            videos.append(run)
+    return videos
 
 
 def relative_name(name: str, root: Path) -> str:

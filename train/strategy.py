@@ -47,6 +47,11 @@ def append(params: Params, optimizer, new: dict[str, Tensor]) -> None:
           lambda k, m: torch.cat([m, torch.zeros_like(new[k]).to(m)]))
 
 
+def replace_values(params: Params, optimizer, values: dict[str, Tensor]) -> None:
+    """Give the parameters named in `values` new values (same shapes); their Adam moments stay."""
+    _edit(params, optimizer, lambda k, p: values[k].to(p) if k in values else p, lambda _, m: m)
+
+
 def reset_opacity(params: Params, optimizer, value: float = 0.01) -> None:
     """Clamp opacities to at most `value` and zero their Adam moments."""
     cap = math.log(value / (1 - value))

@@ -30,11 +30,12 @@ from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import TrainConfig
 from .confidence import confidence_maps
-from .data import downscale_view, relative_name
+from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import dssim, l1, psnr
+from .motion import flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
 PARAM_NAMES = Gaussians4D.TENSORS
@@ -149,6 +150,8 @@ class Trainer:
         if resume and "strategy" in self._loaded_state:
             self.strategy_state = {k: v.to(self.device) for k, v in self._loaded_state["strategy"].items()}
         self._nbr = None
+        # a resumed run past the point has had its velocities set already
+        self._flow_motion_done = resume and self._flow_motion_due(self.vstep())
 
     # --- set-up ---------------------------------------------------------------------------------------------
     def _init_params(self) -> None:
@@ -230,15 +233,9 @@ class Trainer:
         times. A camera that sees only every k-th time (one camera per time, cameras taking turns) has no video:
         interpolating its frames k steps apart fails on everything that moves, and would down-weight exactly the
         moving objects."""
-        by_view: dict[int, list[int]] = {}
-        for i, v in enumerate(self.ds.train):
-            by_view.setdefault(v.view_id, []).append(i)
-        rank = {t: k for k, t in enumerate(self.ds.frame_times)}
         out = {}
-        for idx in by_view.values():
-            idx = sorted(idx, key=lambda i: self.ds.train[i].time)
-            ranks = [rank[self.ds.train[i].time] for i in idx]
-            if len(idx) < 3 or ranks != list(range(ranks[0], ranks[0] + len(ranks))):
+        for idx in camera_videos(self.ds):
+            if len(idx) < 3:
                 continue
             frames = [(view_target(self.ds.train[i], self.ds.background)[0].numpy() * 255 + 0.5).astype(np.uint8)
                       for i in idx]
@@ -311,6 +308,8 @@ class Trainer:
         for g in self.optimizer.param_groups:
             g["lr"] = lrs.get(g["name"], g["lr"])
         deg, deg_t = active_sh(v, cfg)
+        if not self._flow_motion_done and self._flow_motion_due(v):
+            self.set_flow_motion()
         factor = self._resolution_factor(v)
         static = v < cfg.static_iters
         loss_sum, psnr_sum = 0.0, 0.0
@@ -355,6 +354,23 @@ class Trainer:
                 self.params["quats_r"].copy_(self.params["quats_l"])
         self.step += 1
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
+
+    def _flow_motion_due(self, vstep: float) -> bool:
+        at = self.cfg.flow_motion_at
+        return bool(at) and vstep >= at * self.cfg.iters
+
+    def set_flow_motion(self) -> int:
+        """Set every Gaussian's velocity from the optical flow of the training videos (`motion`), once; returns how
+        many Gaussians a camera saw on the surface (0: the data has no videos, nothing changed)."""
+        self._flow_motion_done = True
+        if not camera_videos(self.ds):
+            return 0
+        model = self.model()
+        velocity, seen = flow_velocities(model.to("cpu"), self.ds, self.bg.cpu())
+        if seen:
+            new = with_velocities(model.to("cpu"), velocity, self.ds.frame_times)
+            strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in new.items()})
+        return seen
 
     def elapsed(self) -> float:
         """Seconds this run has spent, across resumes."""

@@ -68,6 +68,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="length of the clip on the trainer's own time axis: a longer clip lets the Gaussians move "
                         "with less tilt in space-time (default: the recipe's, 5; the checkpoint keeps the dataset's "
                         "times; a resumed run keeps its own)")
+    p.add_argument("--flow-motion-at", type=fraction, metavar="F",
+                   help="at this share of the run, set every Gaussian's velocity once from the optical flow between "
+                        "each camera's consecutive frames, lifted to 3D by the model's depth (default: the recipe's, "
+                        "0.3 for an image matrix; 0 = never; needs cameras that film consecutive frames)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -115,7 +119,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "smooth_weight": args.smooth_weight, "batch_size": args.batch_size,
             "checkpoint_every": args.checkpoint_every, "device": args.device,
             "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init,
-            "static_share": args.static_share, "clip_duration": None if resumed else args.clip_duration}
+            "static_share": args.static_share, "clip_duration": None if resumed else args.clip_duration,
+            "flow_motion_at": args.flow_motion_at}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:

@@ -1,0 +1,184 @@
+"""Velocities from optical flow: give every Gaussian the motion the images show between consecutive frames.
+
+Why: a native 4D Gaussian moves along a straight line (velocity ``Σ12 / Σtt``, `splatreel.covariance`), and the
+photometric loss only pulls it within its own footprint. When a surface moves further between two frames than a
+Gaussian is wide (a box turning 24° per frame moves its faces ~10 px at 256²), nothing pulls the Gaussian of one
+frame towards where its surface went in the next: it fades out instead of moving, and in-between times show two
+half-transparent copies. Optical flow sees those large displacements. So, once the model's geometry is fitted (a
+share of the run in), each camera's consecutive frames give a dense 2D flow (OpenCV's DIS, Kroeger et al. 2016),
+which the model's own depth lifts to 3D (scene flow, as in the flow-supervised dynamic Gaussians of Gao et al.,
+GaussianFlow 2024, here used once to set the motion rather than as a loss):
+
+* each Gaussian belongs to the training frame nearest its temporal mean and sits at its sliced position there;
+* in every camera of that frame where it lies on the rendered surface (its depth within a few percent of the
+  expected depth, inside the alpha), its pixel moves by the flow to the next (and the previous) frame, where the
+  model's depth there gives a 3D point; flows that the backward flow does not bring back are dropped;
+* its velocity is the mean over those cameras of (point - position) / time step; Gaussians no camera saw on the
+  surface take the mean velocity of their nearest estimated neighbours at the same frame;
+* the 4D covariance is rebuilt with the same conditional 3D covariance and temporal variance and the new velocity
+  (`splatreel.covariance.covariance_4d_from_motion`), and the 4D mean moved so that the Gaussian stays where it was
+  at its frame.
+
+It needs cameras that film consecutive frames (an image matrix); a dataset with one camera per time has none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from splatreel.covariance import (condition_on_time, covariance_4d_from_motion, decompose_covariance_4d,
+                                  temporal_marginal)
+from splatreel.constants import TEMPORAL_CULL
+from splatreel.datasets import Dataset
+from splatreel.model import Gaussians4D
+from splatreel.rasterize import rasterize
+
+from .data import camera_videos
+
+#: A Gaussian is on the surface a camera sees when its depth is within this share of the rendered depth.
+SURFACE_DEPTH_TOLERANCE = 0.03
+#: Pixels count as covered where the rendered alpha is at least this.
+COVERED_ALPHA = 0.5
+#: Forward-backward check: the backward flow must bring a pixel back within this many pixels (plus 5 % of the flow).
+FLOW_ROUND_TRIP_PX = 1.0
+#: Gaussians no camera saw take the mean velocity of this many nearest estimated ones at the same frame.
+NEIGHBOURS = 4
+
+
+def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``[H, W, 2]`` float32 flow from image `a` to image `b` (``[H, W, 3]`` uint8): pixel (x, y) of `a` is at
+    (x, y) + flow in `b`. DIS, OpenCV's medium preset, on the grey images."""
+    import cv2
+
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    return dis.calc(cv2.cvtColor(a, cv2.COLOR_RGB2GRAY), cv2.cvtColor(b, cv2.COLOR_RGB2GRAY), None)
+
+
+def composited(view, background: torch.Tensor) -> np.ndarray:
+    """``[H, W, 3]`` uint8: the view's image over the background (what the trainer fits)."""
+    if view.alpha is None:
+        return view.image
+    a = view.alpha[..., None].astype(np.float32) / 255.0
+    bg = background.numpy().astype(np.float32) * 255.0
+    return (view.image * a + bg * (1.0 - a) + 0.5).astype(np.uint8)
+
+
+def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """``image [H, W, C]`` at pixel positions ``uv [N, 2]`` (x, y; pixel i spans [i, i + 1)), bilinear, clamped at
+    the border."""
+    h, w = image.shape[:2]
+    x = np.clip(uv[:, 0] - 0.5, 0, w - 1)
+    y = np.clip(uv[:, 1] - 0.5, 0, h - 1)
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    return ((image[y0, x0] * (1 - fx) + image[y0, x1] * fx) * (1 - fy)
+            + (image[y1, x0] * (1 - fx) + image[y1, x1] * fx) * fy)
+
+
+@dataclass
+class _Render:
+    depth: np.ndarray  # [H, W, 1]
+    alpha: np.ndarray  # [H, W, 1]
+
+
+def _render(model: Gaussians4D, view, background: torch.Tensor, var_t: torch.Tensor) -> _Render:
+    rows = torch.nonzero(temporal_marginal(view.time, model.t_means, var_t) > TEMPORAL_CULL)[:, 0]
+    out = rasterize(model.slice(view.time, rows=rows), view.camera, background)
+    return _Render(out.depth.numpy()[..., None], out.alpha.numpy()[..., None])
+
+
+def _lift(positions: np.ndarray, view, render: _Render, flow: np.ndarray, back: np.ndarray, view_to,
+          render_to: _Render) -> tuple[np.ndarray, np.ndarray]:
+    """Where `positions` ``[N, 3]`` (at `view`'s time) are at `view_to`'s time as this camera's flow and the model's
+    depth there say: (points ``[N, 3]``, valid ``[N]``)."""
+    cam = view.camera
+    uv, z = cam.project(positions)
+    h, w = flow.shape[:2]
+    valid = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    uv = np.where(valid[:, None], uv, 0.5)
+    valid &= sample_bilinear(render.alpha, uv)[:, 0] >= COVERED_ALPHA
+    depth = sample_bilinear(render.depth, uv)[:, 0]
+    valid &= np.abs(z - depth) <= SURFACE_DEPTH_TOLERANCE * depth
+    f = sample_bilinear(flow, uv)
+    uv_to = uv + f
+    valid &= (uv_to[:, 0] >= 0) & (uv_to[:, 0] < w) & (uv_to[:, 1] >= 0) & (uv_to[:, 1] < h)
+    uv_to = np.where(valid[:, None], uv_to, 0.5)
+    round_trip = np.linalg.norm(f + sample_bilinear(back, uv_to), axis=-1)
+    valid &= round_trip <= FLOW_ROUND_TRIP_PX + 0.05 * np.linalg.norm(f, axis=-1)
+    valid &= sample_bilinear(render_to.alpha, uv_to)[:, 0] >= COVERED_ALPHA
+    points = view_to.camera.unproject(uv_to, sample_bilinear(render_to.depth, uv_to)[:, 0])
+    return points, valid
+
+
+def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """``[N, 3]`` velocity of every Gaussian of `model` (on `ds`'s times) from optical flow between the
+    consecutive frames of each camera (module doc), and how many Gaussians a camera saw on the surface (the rest
+    took their neighbours' velocity; all keep their own when no Gaussian was seen)."""
+    from scipy.spatial import cKDTree
+
+    model = model.detach()
+    cov3, velocity, var_t = condition_on_time(model.covariance_4d())
+    times = torch.tensor(ds.frame_times, dtype=model.t_means.dtype)
+    frame_of = torch.argmin((model.t_means[:, None] - times[None, :]).abs(), 1).numpy()
+    position = (model.means + velocity * (times[frame_of] - model.t_means)[:, None]).double().numpy()
+    rank = {t: k for k, t in enumerate(ds.frame_times)}
+    total = np.zeros((len(model), 3))
+    count = np.zeros(len(model))
+    with torch.no_grad():
+        for video in camera_videos(ds):
+            renders: dict[int, _Render] = {}  # one video's depth and alpha at a time: memory stays small
+            for i, j in zip(video[:-1], video[1:]):
+                vi, vj = ds.train[i], ds.train[j]
+                for k in (i, j):
+                    if k not in renders:
+                        renders[k] = _render(model, ds.train[k], background, var_t)
+                ci, cj = composited(vi, background), composited(vj, background)
+                fwd, bwd = optical_flow(ci, cj), optical_flow(cj, ci)
+                dt = vj.time - vi.time
+                for src, dst, f, b, sign in ((i, j, fwd, bwd, 1.0), (j, i, bwd, fwd, -1.0)):
+                    rows = np.nonzero(frame_of == rank[ds.train[src].time])[0]
+                    points, valid = _lift(position[rows], ds.train[src], renders[src], f, b, ds.train[dst],
+                                          renders[dst])
+                    rows, moved = rows[valid], points[valid] - position[rows[valid]]
+                    np.add.at(total, rows, sign * moved / dt)
+                    np.add.at(count, rows, 1.0)
+    seen = count > 0
+    estimate = np.zeros((len(model), 3))
+    estimate[seen] = total[seen] / count[seen, None]
+    out = velocity.double().numpy().copy()
+    out[seen] = estimate[seen]
+    for k in np.unique(frame_of):  # the unseen take their estimated neighbours' mean, frame by frame
+        here = frame_of == k
+        known, unknown = np.nonzero(here & seen)[0], np.nonzero(here & ~seen)[0]
+        if len(known) == 0 or len(unknown) == 0:
+            continue
+        nn = min(NEIGHBOURS, len(known))
+        _, idx = cKDTree(position[known]).query(position[unknown], k=nn)
+        idx = idx.reshape(len(unknown), nn)
+        out[unknown] = estimate[known][idx].mean(1)
+    return torch.from_numpy(out).to(model.means.dtype), int(seen.sum())
+
+
+def with_velocities(model: Gaussians4D, velocity: torch.Tensor, times: list[float]) -> dict[str, torch.Tensor]:
+    """New values of the geometry parameters (``means``, ``log_scales``, ``log_t_scales``, ``quats_l``,
+    ``quats_r``) for Gaussians moving at `velocity` ``[N, 3]``: the same conditional 3D covariance and temporal
+    variance, and the same position at the frame of `times` nearest each one's temporal mean."""
+    model = model.detach()
+    convention = model.rotation_convention
+    cov3, old_velocity, var_t = condition_on_time(model.covariance_4d().double())
+    t = torch.tensor(times, dtype=torch.float64)
+    t_means = model.t_means.double()
+    t_frame = t[torch.argmin((t_means[:, None] - t[None, :]).abs(), 1)]
+    dt = (t_frame - t_means)[:, None]
+    v = velocity.double()
+    means = model.means.double() + (old_velocity - v) * dt  # the position at the frame stays
+    scales, scale_t, q_l, q_r = decompose_covariance_4d(covariance_4d_from_motion(cov3, v, var_t), convention)
+    tiny = torch.finfo(torch.float64).tiny
+    dtype = model.means.dtype
+    return {"means": means.to(dtype), "log_scales": scales.clamp_min(tiny).log().to(dtype),
+            "log_t_scales": scale_t.clamp_min(tiny).log().to(dtype), "quats_l": q_l.to(dtype),
+            "quats_r": q_r.to(dtype)}

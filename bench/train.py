@@ -39,7 +39,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
     from splatreel.train.evaluate import view_target
     from splatreel.train.losses import dssim, l1
     from splatreel.rasterize import rasterize
-    from splatreel.train.trainer import alive_at
+    from splatreel.covariance import alive_at
 
     cfg, ds = trainer.cfg, trainer.ds
     phases = dict.fromkeys(("slice", "raster forward", "losses", "backward", "adam"), 0.0)

@@ -33,12 +33,17 @@ def round_trip_psnrs(original_path, returned_path, times=(0.25, 0.6)) -> list[fl
     return out
 
 
+def sample_dataset(tmp_path_factory, name: str, **config):
+    """Write procedural sample `name` (its config class given `config`) to a fresh folder and return the folder."""
+    from splatreel.samples import DatasetConfig, FloorConfig, write_dataset
+
+    root = tmp_path_factory.mktemp("data") / name
+    write_dataset(name, root, (FloorConfig if name == "floor" else DatasetConfig)(**config))
+    return root
+
+
 @pytest.fixture(scope="session")
 def small_floor(tmp_path_factory):
     """An opaque floor to the horizon, one camera per time: 12 frames at 48 px (no camera films two consecutive
     frames)."""
-    from splatreel.samples import FloorConfig, write_dataset
-
-    root = tmp_path_factory.mktemp("data") / "floor"
-    write_dataset("floor", root, FloorConfig(frames=12, size=48, test_views=2))
-    return root
+    return sample_dataset(tmp_path_factory, "floor", frames=12, size=48, test_views=2)

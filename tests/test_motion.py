@@ -13,17 +13,14 @@ from splatreel.train.data import camera_videos, load_dataset
 from splatreel.train.motion import flow_velocities, with_velocities
 from splatreel.train.trainer import Trainer
 
+from conftest import sample_dataset
 from test_model import random_model
 
 
 @pytest.fixture(scope="module")
 def spinner(tmp_path_factory):
     """The spinning box as an image matrix: 8 views x 16 frames at 128 px (it turns 24 degrees per frame)."""
-    from splatreel.samples import DatasetConfig, write_dataset
-
-    root = tmp_path_factory.mktemp("data") / "spinner"
-    write_dataset("spinner", root, DatasetConfig(views=8, frames=16, size=128, test_views=2))
-    return root
+    return sample_dataset(tmp_path_factory, "spinner", views=8, frames=16, size=128, test_views=2)
 
 
 @pytest.fixture(scope="module")
@@ -74,14 +71,26 @@ def test_flow_recovers_the_known_motion_of_the_sample(spinner):
     assert 0.5 < ratio < 1.3  # 0.67 measured (the flow is smoothed into the still backdrop); 0.79 at 256 px
 
 
-def test_the_trainer_sets_the_velocities_once(spinner, tmp_path):
+def test_the_trainer_sets_the_velocities_once(spinner, tmp_path, monkeypatch):
     ds = load_dataset(spinner)
     cfg = dataclasses.replace(preset("efficient4d"), iters=4, batch_size=1, num_gaussians=3000, confidence=False,
                               flow_motion_at=0.5, clip_duration=5.0)
     trainer = Trainer(ds, cfg, tmp_path / "m.safetensors", progress=False)
-    calls = []
+    calls, estimates = [], []
+
+    def estimated(*args):
+        estimates.append(flow_velocities(*args))
+        return estimates[-1]
+
+    def recorded():
+        calls.append(original())
+        # right after the step, the model moves at the flow's velocities
+        torch.testing.assert_close(condition_on_time(trainer.model().covariance_4d().detach().double())[1],
+                                   estimates[-1][0].double(), rtol=1e-3, atol=1e-3)
+        return calls[-1]
+    monkeypatch.setattr("splatreel.train.trainer.flow_velocities", estimated)
     original = trainer.set_flow_motion
-    trainer.set_flow_motion = lambda: calls.append(original()) or calls[-1]
+    trainer.set_flow_motion = recorded
     before = None
     for step in range(4):
         if step == 2:

@@ -18,15 +18,13 @@ from splatreel.train.points import find_point_cloud, read_point_cloud
 from splatreel.train.recipe import auto_recipe, read_traits
 from splatreel.train.trainer import Trainer
 
+from conftest import sample_dataset
+
 
 @pytest.fixture(scope="module")
 def matrix(tmp_path_factory):
     """A bounded object as an image matrix: 4 views x 3 frames at 64 px, transparent around it."""
-    from splatreel.samples import DatasetConfig, write_dataset
-
-    root = tmp_path_factory.mktemp("data") / "spinner"
-    write_dataset("spinner", root, DatasetConfig(views=4, frames=3, size=64, test_views=4))
-    return root
+    return sample_dataset(tmp_path_factory, "spinner", views=4, frames=3, size=64, test_views=4)
 
 
 @pytest.fixture(scope="module")

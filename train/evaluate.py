@@ -27,6 +27,12 @@ def view_target(view: DatasetImage, background, device="cpu") -> tuple[torch.Ten
     return rgb * a[..., None] + bg * (1 - a[..., None]), a
 
 
+def target_bytes(view: DatasetImage, background) -> np.ndarray:
+    """``[H, W, 3]`` uint8: `view_target`'s RGB rounded back to bytes (what OpenCV's flow and the confidence maps
+    read)."""
+    return (view_target(view, background)[0].numpy() * 255 + 0.5).astype(np.uint8)
+
+
 def render_view(model: Model, view: DatasetImage, background, device="cpu") -> torch.Tensor:
     """``[H, W, 3]`` image of `model` at the view's camera and time."""
     with torch.no_grad():

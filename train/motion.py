@@ -29,14 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from splatreel.covariance import (condition_on_time, covariance_4d_from_motion, decompose_covariance_4d,
-                                  temporal_marginal)
-from splatreel.constants import TEMPORAL_CULL
+from splatreel.covariance import alive_at, condition_on_time, covariance_4d_from_motion, decompose_covariance_4d
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
 from splatreel.rasterize import rasterize
 
 from .data import camera_videos
+from .evaluate import target_bytes
 
 #: A Gaussian is on the surface a camera sees when its depth is within this share of the rendered depth.
 SURFACE_DEPTH_TOLERANCE = 0.03
@@ -57,15 +56,6 @@ def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return dis.calc(cv2.cvtColor(a, cv2.COLOR_RGB2GRAY), cv2.cvtColor(b, cv2.COLOR_RGB2GRAY), None)
 
 
-def composited(view, background: torch.Tensor) -> np.ndarray:
-    """``[H, W, 3]`` uint8: the view's image over the background (what the trainer fits)."""
-    if view.alpha is None:
-        return view.image
-    a = view.alpha[..., None].astype(np.float32) / 255.0
-    bg = background.numpy().astype(np.float32) * 255.0
-    return (view.image * a + bg * (1.0 - a) + 0.5).astype(np.uint8)
-
-
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """``image [H, W, C]`` at pixel positions ``uv [N, 2]`` (x, y; pixel i spans [i, i + 1)), bilinear, clamped at
     the border."""
@@ -80,14 +70,34 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 @dataclass
+class _Motion:
+    """Each Gaussian's motion and where it is at the training frame nearest its temporal mean (float64)."""
+
+    cov3: torch.Tensor  # [N, 3, 3] conditional 3D covariance
+    velocity: torch.Tensor  # [N, 3]
+    var_t: torch.Tensor  # [N]
+    frame: np.ndarray  # [N] index into the frame times
+    dt: torch.Tensor  # [N] that frame's time minus the temporal mean
+    position: torch.Tensor  # [N, 3] the sliced mean at that frame
+
+    @classmethod
+    def of(cls, model: Gaussians4D, times: list[float]) -> "_Motion":
+        cov3, velocity, var_t = condition_on_time(model.covariance_4d().detach().double())
+        t = torch.tensor(times, dtype=torch.float64)
+        t_means = model.t_means.detach().double()
+        frame = torch.argmin((t_means[:, None] - t[None, :]).abs(), 1)
+        dt = t[frame] - t_means
+        return cls(cov3, velocity, var_t, frame.numpy(), dt, model.means.detach().double() + velocity * dt[:, None])
+
+
+@dataclass
 class _Render:
     depth: np.ndarray  # [H, W, 1]
     alpha: np.ndarray  # [H, W, 1]
 
 
 def _render(model: Gaussians4D, view, background: torch.Tensor, var_t: torch.Tensor) -> _Render:
-    rows = torch.nonzero(temporal_marginal(view.time, model.t_means, var_t) > TEMPORAL_CULL)[:, 0]
-    out = rasterize(model.slice(view.time, rows=rows), view.camera, background)
+    out = rasterize(model.slice(view.time, rows=alive_at(view.time, model.t_means, var_t)), view.camera, background)
     return _Render(out.depth.numpy()[..., None], out.alpha.numpy()[..., None])
 
 
@@ -121,10 +131,9 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
     from scipy.spatial import cKDTree
 
     model = model.detach()
-    cov3, velocity, var_t = condition_on_time(model.covariance_4d())
-    times = torch.tensor(ds.frame_times, dtype=model.t_means.dtype)
-    frame_of = torch.argmin((model.t_means[:, None] - times[None, :]).abs(), 1).numpy()
-    position = (model.means + velocity * (times[frame_of] - model.t_means)[:, None]).double().numpy()
+    motion = _Motion.of(model, ds.frame_times)
+    frame_of, position = motion.frame, motion.position.numpy()
+    var_t = motion.var_t.to(model.t_means.dtype)
     rank = {t: k for k, t in enumerate(ds.frame_times)}
     total = np.zeros((len(model), 3))
     count = np.zeros(len(model))
@@ -136,7 +145,7 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
                 for k in (i, j):
                     if k not in renders:
                         renders[k] = _render(model, ds.train[k], background, var_t)
-                ci, cj = composited(vi, background), composited(vj, background)
+                ci, cj = target_bytes(vi, background), target_bytes(vj, background)
                 fwd, bwd = optical_flow(ci, cj), optical_flow(cj, ci)
                 dt = vj.time - vi.time
                 for src, dst, f, b, sign in ((i, j, fwd, bwd, 1.0), (j, i, bwd, fwd, -1.0)):
@@ -149,7 +158,7 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
     seen = count > 0
     estimate = np.zeros((len(model), 3))
     estimate[seen] = total[seen] / count[seen, None]
-    out = velocity.double().numpy().copy()
+    out = motion.velocity.numpy().copy()
     out[seen] = estimate[seen]
     for k in np.unique(frame_of):  # the unseen take their estimated neighbours' mean, frame by frame
         here = frame_of == k
@@ -167,16 +176,11 @@ def with_velocities(model: Gaussians4D, velocity: torch.Tensor, times: list[floa
     """New values of the geometry parameters (``means``, ``log_scales``, ``log_t_scales``, ``quats_l``,
     ``quats_r``) for Gaussians moving at `velocity` ``[N, 3]``: the same conditional 3D covariance and temporal
     variance, and the same position at the frame of `times` nearest each one's temporal mean."""
-    model = model.detach()
-    convention = model.rotation_convention
-    cov3, old_velocity, var_t = condition_on_time(model.covariance_4d().double())
-    t = torch.tensor(times, dtype=torch.float64)
-    t_means = model.t_means.double()
-    t_frame = t[torch.argmin((t_means[:, None] - t[None, :]).abs(), 1)]
-    dt = (t_frame - t_means)[:, None]
+    motion = _Motion.of(model, times)
     v = velocity.double()
-    means = model.means.double() + (old_velocity - v) * dt  # the position at the frame stays
-    scales, scale_t, q_l, q_r = decompose_covariance_4d(covariance_4d_from_motion(cov3, v, var_t), convention)
+    means = motion.position - v * motion.dt[:, None]  # the position at the frame stays
+    scales, scale_t, q_l, q_r = decompose_covariance_4d(
+        covariance_4d_from_motion(motion.cov3, v, motion.var_t), model.rotation_convention)
     tiny = torch.finfo(torch.float64).tiny
     dtype = model.means.dtype
     return {"means": means.to(dtype), "log_scales": scales.clamp_min(tiny).log().to(dtype),

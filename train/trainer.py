@@ -18,8 +18,7 @@ import torch
 
 from splatreel.cameras import DatasetView
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
-from splatreel.constants import TEMPORAL_CULL
-from splatreel.covariance import condition_on_time, temporal_marginal
+from splatreel.covariance import alive_at, condition_on_time
 from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
 from splatreel.fileio import atomic_path
@@ -31,7 +30,7 @@ from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
-from .evaluate import evaluate, view_target
+from .evaluate import evaluate, target_bytes, view_target
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import dssim, l1, psnr
@@ -93,13 +92,6 @@ def scale_ratio_loss(log_scales: torch.Tensor, max_ratio: float) -> torch.Tensor
     than 1 / r of its width unless the images pay for it."""
     ratio = torch.exp(log_scales.max(-1).values - log_scales.min(-1).values)
     return (ratio.clamp_min(max_ratio) - max_ratio).mean()
-
-
-def alive_at(t: float, t_means: torch.Tensor, var_t: torch.Tensor) -> torch.Tensor:
-    """Indices of the Gaussians a slice at time `t` draws (temporal marginal above the cull). Slicing only those
-    gives the same image and gradients (the others are culled and get none) at a fraction of the cost: with
-    short-lived Gaussians, most of the model is asleep at any one time."""
-    return torch.nonzero(temporal_marginal(t, t_means, var_t) > TEMPORAL_CULL)[:, 0]
 
 
 @dataclass
@@ -237,8 +229,7 @@ class Trainer:
         for idx in camera_videos(self.ds):
             if len(idx) < 3:
                 continue
-            frames = [(view_target(self.ds.train[i], self.ds.background)[0].numpy() * 255 + 0.5).astype(np.uint8)
-                      for i in idx]
+            frames = [target_bytes(self.ds.train[i], self.ds.background) for i in idx]
             c_rgb, c_ssim = confidence_maps(frames)
             for i, a, b in zip(idx, c_rgb, c_ssim):
                 out[i] = (torch.from_numpy(a).to(self.device), torch.from_numpy(b).to(self.device))
@@ -363,12 +354,10 @@ class Trainer:
         """Set every Gaussian's velocity from the optical flow of the training videos (`motion`), once; returns how
         many Gaussians a camera saw on the surface (0: the data has no videos, nothing changed)."""
         self._flow_motion_done = True
-        if not camera_videos(self.ds):
-            return 0
-        model = self.model()
-        velocity, seen = flow_velocities(model.to("cpu"), self.ds, self.bg.cpu())
+        model = self.model().to("cpu")
+        velocity, seen = flow_velocities(model, self.ds, self.bg.cpu())
         if seen:
-            new = with_velocities(model.to("cpu"), velocity, self.ds.frame_times)
+            new = with_velocities(model, velocity, self.ds.frame_times)
             strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in new.items()})
         return seen
 

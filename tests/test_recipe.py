@@ -52,6 +52,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert cfg.clip_duration == 5.0 and cfg.lr_quats_final == pytest.approx(0.1 * cfg.lr_quats)
     assert "time units long" in text and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
+    assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
 
 
 def test_one_camera_per_time_over_a_floor(floor):
@@ -67,6 +68,7 @@ def test_one_camera_per_time_over_a_floor(floor):
     assert long_clip.batch_size == cfg.batch_size == 8 and "8 images per step" in text
     assert cfg.clip_duration == 5.0 and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
+    assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text
     single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
 

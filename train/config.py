@@ -137,6 +137,9 @@ class TrainConfig:
     #: camera's consecutive frames, lifted to 3D by the model's depth (`train.motion`); 0: never. Needs cameras that
     #: film consecutive frames (an image matrix).
     flow_motion_at: float = 0.0
+    #: Share of the images a step draws that are frames interpolated by optical flow half-way between a camera's
+    #: consecutive frames (`train.flow`); 0: none. Needs cameras that film consecutive frames.
+    inbetween_share: float = 0.0
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

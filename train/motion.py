@@ -36,24 +36,14 @@ from splatreel.rasterize import rasterize
 
 from .data import camera_videos
 from .evaluate import target_bytes
+from .flow import FLOW_ROUND_TRIP_PX, optical_flow
 
 #: A Gaussian is on the surface a camera sees when its depth is within this share of the rendered depth.
 SURFACE_DEPTH_TOLERANCE = 0.03
 #: Pixels count as covered where the rendered alpha is at least this.
 COVERED_ALPHA = 0.5
-#: Forward-backward check: the backward flow must bring a pixel back within this many pixels (plus 5 % of the flow).
-FLOW_ROUND_TRIP_PX = 1.0
 #: Gaussians no camera saw take the mean velocity of this many nearest estimated ones at the same frame.
 NEIGHBOURS = 4
-
-
-def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``[H, W, 2]`` float32 flow from image `a` to image `b` (``[H, W, 3]`` uint8): pixel (x, y) of `a` is at
-    (x, y) + flow in `b`. DIS, OpenCV's medium preset, on the grey images."""
-    import cv2
-
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    return dis.calc(cv2.cvtColor(a, cv2.COLOR_RGB2GRAY), cv2.cvtColor(b, cv2.COLOR_RGB2GRAY), None)
 
 
 def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:

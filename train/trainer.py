@@ -31,6 +31,7 @@ from .config import TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, target_bytes, view_target
+from .flow import inbetween_views
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import dssim, l1, psnr
@@ -127,7 +128,9 @@ class Trainer:
         self.elapsed_before = 0.0  # seconds spent by the run before it was resumed
         self.step = 0
         self.losses: list[float] = []
-        self._views_at: dict[int, list[DatasetImage]] = {1: dataset.train}
+        # the images the steps draw from: the training images, then the in-between frames the flow interpolates
+        self.inbetween = inbetween_views(dataset) if config.inbetween_share else []
+        self._views_at: dict[int, list[DatasetImage]] = {1: dataset.train + self.inbetween}
         self._conf = self._confidence() if config.confidence else {}
         self.alpha_conflicts: AlphaConflicts = find_alpha_conflicts(dataset)
         self._alpha_weight: dict[tuple[int, int], torch.Tensor | None] = {}
@@ -252,7 +255,7 @@ class Trainer:
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
-            self._views_at[factor] = [downscale_view(v, factor) for v in self.ds.train]
+            self._views_at[factor] = [downscale_view(v, factor) for v in self._views(1)]
         return self._views_at[factor]
 
     def _resolution_factor(self, vstep: float) -> int:
@@ -262,18 +265,22 @@ class Trainer:
         return 1
 
     def _pick(self, static: bool = False) -> int:
-        """Index of the next training image (uniform, from the run's own generator; the first frame's only while
-        `static`)."""
+        """Index into `_views` of the next image, from the run's own generator: an in-between frame with
+        probability `inbetween_share`, else a training image (the first frame's only while `static`)."""
         if static:
             first = min(v.frame_id for v in self.ds.train)
             pool = [i for i, v in enumerate(self.ds.train) if v.frame_id == first]
             return pool[int(torch.randint(len(pool), (1,), generator=self.generator))]
+        if self.inbetween and float(torch.rand((), generator=self.generator)) < self.cfg.inbetween_share:
+            return len(self.ds.train) + int(torch.randint(len(self.inbetween), (1,), generator=self.generator))
         return int(torch.randint(len(self.ds.train), (1,), generator=self.generator))
 
     def _loss_weights(self, i: int, factor: int) -> tuple[torch.Tensor | None, ...]:
         """Per-pixel weights of training image `i` at 1/`factor` resolution for the L1, D-SSIM and alpha terms:
         the confidence maps (full resolution only) times the alpha-conflict weight (0 where the image's
-        transparency contradicts the other views, unless `strict_alpha`)."""
+        transparency contradicts the other views, unless `strict_alpha`); none for an in-between frame."""
+        if i >= len(self.ds.train):
+            return None, None, None
         key = (i, factor)
         if key not in self._alpha_weight:
             w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected else \

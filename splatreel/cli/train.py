@@ -72,6 +72,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="at this share of the run, set every Gaussian's velocity once from the optical flow between "
                         "each camera's consecutive frames, lifted to 3D by the model's depth (default: the recipe's, "
                         "0.3 for an image matrix; 0 = never; needs cameras that film consecutive frames)")
+    p.add_argument("--inbetween-share", type=fraction, metavar="F",
+                   help="share of the images a step draws that are frames optical flow interpolates half-way "
+                        "between a camera's consecutive frames (default: the recipe's, 0.25 for an image matrix; "
+                        "0 = none; needs cameras that film consecutive frames)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -120,7 +124,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "checkpoint_every": args.checkpoint_every, "device": args.device,
             "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init,
             "static_share": args.static_share, "clip_duration": None if resumed else args.clip_duration,
-            "flow_motion_at": args.flow_motion_at}
+            "flow_motion_at": args.flow_motion_at,
+            "inbetween_share": args.inbetween_share}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:

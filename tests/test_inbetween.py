@@ -1,0 +1,92 @@
+"""Frames interpolated by optical flow half-way between a camera's consecutive frames (`splatreel.train.flow`), and
+the trainer drawing them."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from splatreel.datasets import DatasetImage
+from splatreel.train.config import preset
+from splatreel.train.data import load_dataset
+from splatreel.train.flow import inbetween_views, interpolate_midway, midway_view
+from splatreel.train.trainer import Trainer
+
+from conftest import sample_dataset
+
+
+@pytest.fixture(scope="module")
+def spinner(tmp_path_factory):
+    """The spinning box as an image matrix: 4 views x 5 frames at 64 px."""
+    return sample_dataset(tmp_path_factory, "spinner", views=4, frames=5, size=64, test_views=2)
+
+
+def psnr(a, b) -> float:
+    return -10 * math.log10(float(((a - b) ** 2).mean()))
+
+
+def textured_square(shift: float) -> np.ndarray:
+    """``[96, 96, 3]`` float: a smoothly textured square on grey, `shift` pixels to the right."""
+    y, x = np.mgrid[0:96, 0:96].astype(np.float32)
+    inside = ((x - shift >= 24) & (x - shift < 64) & (y >= 28) & (y < 68)).astype(np.float32)[..., None]
+    pattern = np.stack([0.5 + 0.4 * np.sin((x - shift) / 3.0), 0.5 + 0.4 * np.cos(y / 4.0),
+                        0.5 + 0.3 * np.sin((x - shift + y) / 5.0)], -1)
+    return inside * pattern + (1 - inside) * 0.5
+
+
+def test_a_translation_is_interpolated_half_way():
+    a, b, truth = textured_square(0.0), textured_square(8.0), textured_square(4.0)
+    as_bytes = lambda im: (im * 255 + 0.5).astype(np.uint8)  # noqa: E731
+    mid = interpolate_midway(a, b, as_bytes(a), as_bytes(b))
+    assert psnr(mid, truth) > psnr(0.5 * (a + b), truth) + 10  # a cross-fade shows two half copies
+    assert psnr(mid, truth) > 30
+
+
+def test_the_spinners_in_between_frames_beat_the_nearest_frame_and_a_cross_fade():
+    from splatreel.samples.catalog import get_sample
+    from splatreel.samples.dataset import DatasetConfig, SampleView, _camera, render_views
+    from splatreel.samples.render import MeshRenderer
+
+    cfg = DatasetConfig(views=8, frames=16, size=128)
+    renderer, box = MeshRenderer(), get_sample("spinner")
+    on_white = lambda v: v.image / 255 * (v.alpha[..., None] / 255) + 1 - v.alpha[..., None] / 255  # noqa: E731
+    scores = {"flow": [], "cross-fade": [], "nearest": []}
+    for azimuth in (0.0, 135.0):
+        camera = _camera(cfg, cfg.elevation, azimuth)
+        for f in (2, 9):
+            times = [f / 15, (f + 0.5) / 15, (f + 1) / 15]
+            views = [SampleView("x", k, t, azimuth, cfg.elevation, camera) for k, t in enumerate(times)]
+            a, truth, b = (DatasetImage(im[..., :3].copy(), im[..., 3].copy(), camera, t, 0, k, "x")
+                           for k, ((_, im), t) in enumerate(zip(render_views(box, views, renderer), times)))
+            mid = midway_view(a, b, (1.0, 1.0, 1.0))
+            assert mid.time == pytest.approx(truth.time) and mid.camera is camera
+            scores["flow"].append(psnr(on_white(mid), on_white(truth)))
+            scores["cross-fade"].append(psnr(0.5 * (on_white(a) + on_white(b)), on_white(truth)))
+            scores["nearest"].append(psnr(on_white(a), on_white(truth)))
+    mean = {k: np.mean(v) for k, v in scores.items()}
+    # measured 28.6 / 24.0 / 21.4 dB at 256 px, 16 views
+    assert mean["flow"] > mean["cross-fade"] + 2 and mean["flow"] > mean["nearest"] + 4, mean
+
+
+def test_one_in_between_frame_per_pair_of_consecutive_frames(spinner, small_floor):
+    ds = load_dataset(spinner)
+    frames = inbetween_views(ds)
+    assert len(frames) == 4 * 4
+    mids = sorted({v.time for v in frames})
+    times = ds.frame_times
+    np.testing.assert_allclose(mids, [(s + t) / 2 for s, t in zip(times[:-1], times[1:])])
+    assert all(v.alpha is not None and v.image.dtype == np.uint8 and v.image.shape == (64, 64, 3) for v in frames)
+    assert inbetween_views(load_dataset(small_floor)) == []  # one camera per time films no consecutive frames
+
+
+@pytest.mark.parametrize("share", [0.0, 0.5, 1.0])
+def test_the_trainer_draws_in_between_frames_at_their_share(spinner, tmp_path, share):
+    ds = load_dataset(spinner)
+    cfg = dataclasses.replace(preset("efficient4d"), iters=2, batch_size=1, num_gaussians=500, confidence=False,
+                              inbetween_share=share)
+    trainer = Trainer(ds, cfg, tmp_path / "m.safetensors", progress=False)
+    assert len(trainer.inbetween) == (16 if share else 0)
+    drawn = [trainer._pick() >= len(ds.train) for _ in range(400)]
+    assert abs(np.mean(drawn) - share) < 0.08
+    assert trainer.train_step()[0] > 0

@@ -1,0 +1,106 @@
+"""Optical flow between a camera's consecutive frames, and the frames it interpolates half-way between them.
+
+An image matrix (V views x F frames) shows each camera only at the F key times, yet the model is played, rendered
+and exported at every time in between. There a native 4D Gaussian fades between its frames' copies unless something
+says where the surface is at in-between times. The flow of each camera's video says it: the frame half-way between
+two consecutive frames is synthesised the way flow-based video frame interpolation does (bidirectional backward
+warping with occlusion-aware blending, as in Jiang et al., Super SloMo, CVPR 2018), and the trainer draws it like
+a training image for a share of its steps (`TrainConfig.inbetween_share`). Interpolation is exact on smooth motion
+and errs where the flow does (occlusion edges, large turns); the many views of one time average those errors out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from splatreel.datasets import Dataset, DatasetImage
+
+from .data import camera_videos
+from .evaluate import target_bytes
+
+#: Forward-backward check: the other direction's flow must bring a pixel back within this many pixels (plus 5 % of
+#: the flow) for the pixel to count as seen in both frames.
+FLOW_ROUND_TRIP_PX = 1.0
+#: Fixed-point iterations that invert "x0 + flow(x0) / 2 = x" for the pixel of each frame that lands on x half-way.
+INVERT_ITERATIONS = 6
+
+
+def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``[H, W, 2]`` float32 flow from image `a` to image `b` (``[H, W, 3]`` uint8): pixel (x, y) of `a` is at
+    (x, y) + flow in `b`. DIS (Kroeger et al. 2016), OpenCV's medium preset, on the grey images."""
+    import cv2
+
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    return dis.calc(cv2.cvtColor(a, cv2.COLOR_RGB2GRAY), cv2.cvtColor(b, cv2.COLOR_RGB2GRAY), None)
+
+
+def round_trip_ok(flow: np.ndarray, back: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``[...]`` bool: whether the pixels at `at` ``[..., 2]`` (x, y) move by `flow` and come back by `back` within
+    `FLOW_ROUND_TRIP_PX` (plus 5 % of the flow): seen in both frames."""
+    f = warp(flow, at)
+    error = np.linalg.norm(f + warp(back, at + f), axis=-1)
+    return error <= FLOW_ROUND_TRIP_PX + 0.05 * np.linalg.norm(f, axis=-1)
+
+
+def warp(image: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """`image` ``[H, W, C]`` sampled bilinearly at `at` ``[..., 2]`` (x, y in the flow's pixel coordinates),
+    clamped at the border."""
+    import cv2
+
+    out = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), np.ascontiguousarray(at[..., 0], np.float32),
+                    np.ascontiguousarray(at[..., 1], np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(*at.shape[:-1], image.shape[-1])
+
+
+def midway_sources(flow: np.ndarray) -> np.ndarray:
+    """``[H, W, 2]``: for every pixel x, the pixel x0 of the first frame that `flow` carries to x half-way
+    (x0 + flow(x0) / 2 = x, by fixed-point iteration from x0 = x)."""
+    h, w = flow.shape[:2]
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), -1)
+    x0 = grid.copy()
+    for _ in range(INVERT_ITERATIONS):
+        x0 = grid - 0.5 * warp(flow, x0)
+    return x0
+
+
+def interpolate_midway(a: np.ndarray, b: np.ndarray, grey_a: np.ndarray, grey_b: np.ndarray) -> np.ndarray:
+    """The frame half-way between `a` and `b` (``[H, W, C]`` float, premultiplied colour and alpha when there is
+    one), from the flow between their composited images `grey_a`, `grey_b` (``[H, W, 3]`` uint8): each pixel
+    takes the average of where it comes from in both frames, or the one frame that sees it where the other's flow
+    fails the round trip (an occlusion)."""
+    fwd, bwd = optical_flow(grey_a, grey_b), optical_flow(grey_b, grey_a)
+    from_a, from_b = midway_sources(fwd), midway_sources(bwd)
+    seen_a = round_trip_ok(fwd, bwd, from_a).astype(np.float32) + 1e-3
+    seen_b = round_trip_ok(bwd, fwd, from_b).astype(np.float32) + 1e-3
+    return (seen_a[..., None] * warp(a, from_a) + seen_b[..., None] * warp(b, from_b)) / (seen_a + seen_b)[..., None]
+
+
+def _premultiplied(view: DatasetImage) -> np.ndarray:
+    rgb = view.image.astype(np.float32) / 255.0
+    if view.alpha is None:
+        return rgb
+    a = view.alpha.astype(np.float32)[..., None] / 255.0
+    return np.concatenate([rgb * a, a], -1)
+
+
+def midway_view(a: DatasetImage, b: DatasetImage, background) -> DatasetImage:
+    """A training image of `a`'s camera half-way in time between `a` and `b` (consecutive frames of one camera)."""
+    out = interpolate_midway(_premultiplied(a), _premultiplied(b), target_bytes(a, background),
+                             target_bytes(b, background))
+    if a.alpha is None:
+        image, alpha = out, None
+    else:
+        alpha = np.clip(out[..., 3], 0.0, 1.0)
+        image = np.clip(out[..., :3] / np.maximum(alpha, 1e-6)[..., None], 0.0, 1.0)
+        alpha = (alpha * 255 + 0.5).astype(np.uint8)
+    image = (image * 255 + 0.5).astype(np.uint8)
+    return replace(a, image=image, alpha=alpha, time=0.5 * (a.time + b.time), name=f"{a.name} (in between)")
+
+
+def inbetween_views(ds: Dataset) -> list[DatasetImage]:
+    """One interpolated image half-way between each pair of consecutive frames of every camera's video
+    (`camera_videos`); none when no camera films consecutive frames."""
+    return [midway_view(ds.train[i], ds.train[j], ds.background)
+            for video in camera_videos(ds) for i, j in zip(video[:-1], video[1:])]

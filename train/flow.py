@@ -65,13 +65,15 @@ def midway_sources(flow: np.ndarray) -> np.ndarray:
     return x0
 
 
-def interpolate_midway(a: np.ndarray, b: np.ndarray, grey_a: np.ndarray, grey_b: np.ndarray) -> np.ndarray:
+def interpolate_midway(a: np.ndarray, b: np.ndarray, shown_a: np.ndarray, shown_b: np.ndarray) -> np.ndarray:
     """The frame half-way between `a` and `b` (``[H, W, C]`` float, premultiplied colour and alpha when there is
-    one), from the flow between their composited images `grey_a`, `grey_b` (``[H, W, 3]`` uint8): each pixel
+    one), from the flow between the images as shown, `shown_a`, `shown_b` (``[H, W, 3]`` uint8, composited on the
+    background): each pixel
     takes the average of where it comes from in both frames, or the one frame that sees it where the other's flow
     fails the round trip (an occlusion)."""
-    fwd, bwd = optical_flow(grey_a, grey_b), optical_flow(grey_b, grey_a)
+    fwd, bwd = optical_flow(shown_a, shown_b), optical_flow(shown_b, shown_a)
     from_a, from_b = midway_sources(fwd), midway_sources(bwd)
+    # a pixel neither frame sees consistently (both round trips fail) takes the plain average
     seen_a = round_trip_ok(fwd, bwd, from_a).astype(np.float32) + 1e-3
     seen_b = round_trip_ok(bwd, fwd, from_b).astype(np.float32) + 1e-3
     return (seen_a[..., None] * warp(a, from_a) + seen_b[..., None] * warp(b, from_b)) / (seen_a + seen_b)[..., None]

@@ -131,8 +131,9 @@ def main() -> None:
             res = tr.run()
             seconds = time.perf_counter() - t  # includes the alpha test, confidence maps and set-up
             ev = tr.evaluate_test()
-            on_black = evaluate(tr.dataset_model(), ds.test, (0.0, 0.0, 0.0), progress=False)["psnr"]
-            fit = evaluate(tr.dataset_model(), ds.train[::FIT_EVERY], ds.background, progress=False)["psnr"]
+            model = tr.dataset_model()  # what the checkpoint holds
+            on_black = evaluate(model, ds.test, (0.0, 0.0, 0.0), progress=False)["psnr"]
+            fit = evaluate(model, ds.train[::FIT_EVERY], ds.background, progress=False)["psnr"]
             base = baselines(ds.test, ds.train, ds.background)
             bound = upper_bound(name, ds)
             rows.append({"sample": name, "regime": "one camera per time" if traits.one_view_per_time

@@ -23,19 +23,14 @@ def spinner(tmp_path_factory):
     return sample_dataset(tmp_path_factory, "spinner", views=8, frames=16, size=128, test_views=2)
 
 
-@pytest.fixture(scope="module")
-def floor(small_floor):
-    return small_floor
-
-
-def test_an_image_matrix_has_one_video_per_camera_and_one_camera_per_time_none(spinner, floor):
+def test_an_image_matrix_has_one_video_per_camera_and_one_camera_per_time_none(spinner, small_floor):
     ds = load_dataset(spinner)
     videos = camera_videos(ds)
     assert len(videos) == 8 and all(len(v) == 16 for v in videos)
     for video in videos:
         assert len({ds.train[i].view_id for i in video}) == 1
         assert [ds.train[i].time for i in video] == sorted(ds.frame_times)
-    assert camera_videos(load_dataset(floor)) == []
+    assert camera_videos(load_dataset(small_floor)) == []
 
 
 def test_with_velocities_sets_the_motion_and_keeps_the_rest():
@@ -104,8 +99,8 @@ def test_the_trainer_sets_the_velocities_once(spinner, tmp_path, monkeypatch):
     assert np.isfinite(after.numpy()).all()
 
 
-def test_one_camera_per_time_changes_nothing(floor, tmp_path):
-    ds = load_dataset(floor)
+def test_one_camera_per_time_changes_nothing(small_floor, tmp_path):
+    ds = load_dataset(small_floor)
     cfg = dataclasses.replace(preset("efficient4d"), iters=2, batch_size=1, num_gaussians=500, confidence=False,
                               flow_motion_at=0.5)
     trainer = Trainer(ds, cfg, tmp_path / "m.safetensors", progress=False)

@@ -27,11 +27,6 @@ def matrix(tmp_path_factory):
     return sample_dataset(tmp_path_factory, "spinner", views=4, frames=3, size=64, test_views=4)
 
 
-@pytest.fixture(scope="module")
-def floor(small_floor):
-    return small_floor
-
-
 def decisions_text(decisions) -> str:
     return "\n".join(d.line() for d in decisions)
 
@@ -55,8 +50,8 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
 
 
-def test_one_camera_per_time_over_a_floor(floor):
-    traits = read_traits(load_dataset(floor))
+def test_one_camera_per_time_over_a_floor(small_floor):
+    traits = read_traits(load_dataset(small_floor))
     assert traits.one_view_per_time and traits.open_backdrop
     cfg, decisions = auto_recipe(traits)
     assert cfg.minutes == 10.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
@@ -73,10 +68,10 @@ def test_one_camera_per_time_over_a_floor(floor):
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
 
 
-def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):
+def test_static_share_starts_gaussians_static(small_floor, tmp_path, capsys):
     from splatreel.train.initialize import start_static
 
-    ds = load_dataset(floor)
+    ds = load_dataset(small_floor)
     cfg, _ = auto_recipe(read_traits(ds))
     cfg = dataclasses.replace(cfg.scaled(2), minutes=None, num_gaussians=2000, static_share=0.25)
     tr = Trainer(ds, cfg, tmp_path / "s.safetensors", progress=False)
@@ -91,15 +86,15 @@ def test_static_share_starts_gaussians_static(floor, tmp_path, capsys):
     assert float(early.opacities.min()) > 0.85 * float(torch.sigmoid(model.opacity_logits).min())
     raw = {"means": torch.zeros(10, 3), "t_means": torch.zeros(10), "log_t_scales": torch.zeros(10)}
     assert start_static(raw, 0.0, (0.0, 1.0), torch.Generator()) is raw
-    args = ["train", str(floor), "--out", str(tmp_path / "x.safetensors"), "--static-share", "1.5"]
+    args = ["train", str(small_floor), "--out", str(tmp_path / "x.safetensors"), "--static-share", "1.5"]
     with pytest.raises(SystemExit) as exc:
         main(args)
     assert exc.value.code == 2 and "expected a number from 0 to 1" in capsys.readouterr().err
 
 
-def test_an_image_whose_time_has_no_live_gaussians_reports_a_finite_loss(floor, tmp_path):
+def test_an_image_whose_time_has_no_live_gaussians_reports_a_finite_loss(small_floor, tmp_path):
     """The scale-ratio term of one camera per time averaged over no Gaussians was NaN in the reported loss."""
-    ds = load_dataset(floor)
+    ds = load_dataset(small_floor)
     cfg, _ = auto_recipe(read_traits(ds))
     cfg = dataclasses.replace(cfg.scaled(4), minutes=None, num_gaussians=500, batch_size=1)
     tr = Trainer(ds, cfg, tmp_path / "e.safetensors", progress=False)

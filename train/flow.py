@@ -25,6 +25,8 @@ from .evaluate import target_bytes
 FLOW_ROUND_TRIP_PX = 1.0
 #: Fixed-point iterations that invert "x0 + flow(x0) / 2 = x" for the pixel of each frame that lands on x half-way.
 INVERT_ITERATIONS = 6
+#: Points per row when `warp` samples a list of points (OpenCV's remap takes maps under 32767 wide).
+REMAP_ROW = 4096
 
 
 def optical_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -45,13 +47,21 @@ def round_trip_ok(flow: np.ndarray, back: np.ndarray, at: np.ndarray) -> np.ndar
 
 
 def warp(image: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """`image` ``[H, W, C]`` sampled bilinearly at `at` ``[..., 2]`` (x, y in the flow's pixel coordinates),
-    clamped at the border."""
+    """`image` ``[H, W, C]`` sampled bilinearly at `at` (x, y in the flow's pixel coordinates: pixel i's centre at
+    i), clamped at the border: a grid ``[h, w, 2]`` gives ``[h, w, C]``, a list of points ``[N, 2]`` gives
+    ``[N, C]``."""
     import cv2
 
-    out = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), np.ascontiguousarray(at[..., 0], np.float32),
-                    np.ascontiguousarray(at[..., 1], np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(*at.shape[:-1], image.shape[-1])
+    channels = image.shape[-1]
+    grid = np.asarray(at, dtype=np.float32)
+    points = len(grid) if grid.ndim == 2 else None
+    if points is not None:  # OpenCV's maps are 2D and under 32767 wide: the points go in rows of REMAP_ROW
+        rows = max(1, -(-points // REMAP_ROW))
+        grid = np.concatenate([grid, np.zeros((rows * REMAP_ROW - points, 2), np.float32)]).reshape(rows, -1, 2)
+    out = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), np.ascontiguousarray(grid[..., 0]),
+                    np.ascontiguousarray(grid[..., 1]), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = out.reshape(*grid.shape[:2], channels)
+    return out if points is None else out.reshape(-1, channels)[:points]
 
 
 def midway_sources(flow: np.ndarray) -> np.ndarray:

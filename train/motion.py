@@ -36,7 +36,7 @@ from splatreel.rasterize import rasterize
 
 from .data import camera_videos
 from .evaluate import target_bytes
-from .flow import FLOW_ROUND_TRIP_PX, optical_flow
+from .flow import optical_flow, round_trip_ok, warp
 
 #: A Gaussian is on the surface a camera sees when its depth is within this share of the rendered depth.
 SURFACE_DEPTH_TOLERANCE = 0.03
@@ -44,19 +44,6 @@ SURFACE_DEPTH_TOLERANCE = 0.03
 COVERED_ALPHA = 0.5
 #: Gaussians no camera saw take the mean velocity of this many nearest estimated ones at the same frame.
 NEIGHBOURS = 4
-
-
-def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """``image [H, W, C]`` at pixel positions ``uv [N, 2]`` (x, y; pixel i spans [i, i + 1)), bilinear, clamped at
-    the border."""
-    h, w = image.shape[:2]
-    x = np.clip(uv[:, 0] - 0.5, 0, w - 1)
-    y = np.clip(uv[:, 1] - 0.5, 0, h - 1)
-    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    return ((image[y0, x0] * (1 - fx) + image[y0, x1] * fx) * (1 - fy)
-            + (image[y1, x0] * (1 - fx) + image[y1, x1] * fx) * fy)
 
 
 @dataclass
@@ -95,22 +82,19 @@ def _lift(positions: np.ndarray, view, render: _Render, flow: np.ndarray, back: 
           render_to: _Render) -> tuple[np.ndarray, np.ndarray]:
     """Where `positions` ``[N, 3]`` (at `view`'s time) are at `view_to`'s time as this camera's flow and the model's
     depth there say: (points ``[N, 3]``, valid ``[N]``)."""
-    cam = view.camera
-    uv, z = cam.project(positions)
+    uv, z = view.camera.project(positions)  # pixel i spans [i, i + 1); the flow's pixel i is centred at i
     h, w = flow.shape[:2]
-    valid = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-    uv = np.where(valid[:, None], uv, 0.5)
-    valid &= sample_bilinear(render.alpha, uv)[:, 0] >= COVERED_ALPHA
-    depth = sample_bilinear(render.depth, uv)[:, 0]
+    inside = lambda p: (p[:, 0] >= 0) & (p[:, 0] < w) & (p[:, 1] >= 0) & (p[:, 1] < h)  # noqa: E731
+    valid = (z > 0) & inside(uv)
+    at = np.where(valid[:, None], uv, 0.5) - 0.5
+    valid &= warp(render.alpha, at)[:, 0] >= COVERED_ALPHA
+    depth = warp(render.depth, at)[:, 0]
     valid &= np.abs(z - depth) <= SURFACE_DEPTH_TOLERANCE * depth
-    f = sample_bilinear(flow, uv)
-    uv_to = uv + f
-    valid &= (uv_to[:, 0] >= 0) & (uv_to[:, 0] < w) & (uv_to[:, 1] >= 0) & (uv_to[:, 1] < h)
-    uv_to = np.where(valid[:, None], uv_to, 0.5)
-    round_trip = np.linalg.norm(f + sample_bilinear(back, uv_to), axis=-1)
-    valid &= round_trip <= FLOW_ROUND_TRIP_PX + 0.05 * np.linalg.norm(f, axis=-1)
-    valid &= sample_bilinear(render_to.alpha, uv_to)[:, 0] >= COVERED_ALPHA
-    points = view_to.camera.unproject(uv_to, sample_bilinear(render_to.depth, uv_to)[:, 0])
+    uv_to = uv + warp(flow, at)
+    valid &= inside(uv_to) & round_trip_ok(flow, back, at)
+    at_to = np.where(valid[:, None], uv_to, 0.5) - 0.5
+    valid &= warp(render_to.alpha, at_to)[:, 0] >= COVERED_ALPHA
+    points = view_to.camera.unproject(at_to + 0.5, warp(render_to.depth, at_to)[:, 0])
     return points, valid
 
 

@@ -94,6 +94,7 @@ _ZERO, _HALF, _ONE, _TWO = _F(0.0), _F(0.5), _F(1.0), _F(2.0)
 _ALPHA_MIN = _F(ALPHA_THRESHOLD)
 _ALPHA_MAX = _F(MAX_ALPHA)
 _T_MIN = _F(TRANSMITTANCE_THRESHOLD)
+_DISC_SLACK = _F(1e-3)  # `_rows_touched`: relative slack of the row test
 _TILE = TILE_SIZE
 _TILE_PIXELS = TILE_SIZE * TILE_SIZE
 #: Work of a tile beyond its Gaussians (reading and writing its pixels), in units of one Gaussian, for `balance_tiles`.
@@ -243,8 +244,10 @@ def _rows_touched(gauss, g, x0, y0, x1, y1, rows):
     the alpha test; return how many. Rows are evaluated whole; this only skips the others.
 
     The alpha >= 1/255 ellipse spans |dy| <= ext_y, and on the row at offset dy the columns
-    i = u - 0.5 - dx with dx = (-b dy +- sqrt(2 a s_max - det dy^2)) / a. One pixel of slack on every side:
-    rounding must never drop a pixel the exact test would accept.
+    i = u - 0.5 - dx with dx = (-b dy +- sqrt(2 a s_max - det dy^2)) / a. A row whose discriminant is negative
+    has no pixel below s_max (its smallest sigma, det dy^2 / 2a, is larger), so it is skipped: a third of the
+    rows of the small Gaussians of a trained model. Slack, so that rounding never drops a pixel the exact test
+    would accept: one pixel on every side, and a discriminant may be short by 0.1% of 2 a s_max.
     """
     v, ext_y = gauss[g, COL_V], gauss[g, COL_EXTY]
     lo = max(np.floor(v - _HALF - ext_y) - _ONE, _F(y0))
@@ -257,7 +260,8 @@ def _rows_touched(gauss, g, x0, y0, x1, y1, rows):
         disc = gauss[g, COL_2AS] - gauss[g, COL_DET] * dy * dy
         half = np.sqrt(max(disc, _ZERO)) * gauss[g, COL_INVA]
         centre = gauss[g, COL_U] - _HALF + gauss[g, COL_BA] * dy
-        if np.floor(centre - half) - _ONE <= _F(x1 - 1) and np.ceil(centre + half) + _ONE >= _F(x0):
+        if (disc >= -_DISC_SLACK * gauss[g, COL_2AS] and np.floor(centre - half) - _ONE <= _F(x1 - 1)
+                and np.ceil(centre + half) + _ONE >= _F(x0)):
             rows[count] = py
             count += 1
     return count

@@ -48,6 +48,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert "time units long" in text and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
     assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
+    assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
 
 
 def test_one_camera_per_time_over_a_floor(small_floor):
@@ -64,6 +65,7 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert cfg.clip_duration == 5.0 and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
     assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text
+    assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
     single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
 
@@ -121,6 +123,11 @@ def test_large_images_train_coarse_to_fine():
     cfg, decisions = auto_recipe(traits)
     assert cfg.resolution_ramp and all(k > 1 for _, k in cfg.resolution_ramp)
     assert "--resolution-ramp" in decisions_text(decisions)
+    # the cap follows the pixels the subject covers: 10 per opaque pixel of an image, within 60k-150k
+    assert cfg.densify.max_gaussians == 150_000  # nothing known of the alpha: every pixel counts
+    for pixels, cap in ((4381, 60_000), (6858, 70_000), (11081, 110_000), (25565, 150_000)):
+        cfg, decisions = auto_recipe(dataclasses.replace(traits, foreground_pixels=pixels))
+        assert cfg.densify.max_gaussians == cap and f"densify up to {cap:,} Gaussians" in decisions_text(decisions)
 
 
 def write_ply(path, points, colors):

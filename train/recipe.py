@@ -37,6 +37,11 @@ FLOW_MOTION_AT = 0.3
 #: Share of an image matrix's training draws that are frames the flow interpolates half-way between a camera's
 #: consecutive frames (`TrainConfig.inbetween_share`).
 INBETWEEN_SHARE = 0.25
+#: Cap on the Gaussian count (`DensifyConfig.max_gaussians`): this many per pixel that the subject covers in a
+#: training image (on average), within these bounds. Within a time budget every Gaussian costs steps (the
+#: rasterizer's work grows with the count), and a few hundred steps do not place more than that well.
+GAUSSIANS_PER_FOREGROUND_PIXEL = 10
+MAX_GAUSSIANS_RANGE = (60_000, 150_000)
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,8 @@ class DataTraits:
     point_cloud: Path | None
     #: The dataset's layout (`splatreel.datasets.LAYOUTS`).
     layout: str = "dnerf"
+    #: Mean number of opaque pixels (alpha >= 0.5) per training image; every pixel without alpha. None: unknown.
+    foreground_pixels: float | None = None
 
     @property
     def generated(self) -> bool:
@@ -67,6 +74,13 @@ class DataTraits:
     @property
     def open_backdrop(self) -> bool:
         return self.border_opaque >= OPEN_BORDER_SHARE
+
+    @property
+    def max_gaussians(self) -> int:
+        """The recipe's cap on the Gaussian count (`GAUSSIANS_PER_FOREGROUND_PIXEL`)."""
+        lo, hi = MAX_GAUSSIANS_RANGE
+        pixels = self.width * self.height if self.foreground_pixels is None else self.foreground_pixels
+        return int(min(max(round(GAUSSIANS_PER_FOREGROUND_PIXEL * pixels, -4), lo), hi))
 
 
 @dataclass(frozen=True)
@@ -101,12 +115,19 @@ def border_opaque_share(ds: Dataset) -> float:
     return opaque / max(total, 1)
 
 
+def foreground_pixels(ds: Dataset) -> float:
+    """Mean number of opaque pixels (alpha >= 0.5) per training image; every pixel of an image without alpha."""
+    return float(np.mean([v.size[0] * v.size[1] if v.alpha is None else np.count_nonzero(v.alpha >= 128)
+                          for v in ds.train]))
+
+
 def read_traits(ds: Dataset) -> DataTraits:
     w, h = ds.train[0].size
     return DataTraits(images=len(ds.train), frames=len(ds.frame_times),
                       views_per_time=len(ds.train) / max(len(ds.frame_times), 1),
                       has_alpha=any(v.alpha is not None for v in ds.train), border_opaque=border_opaque_share(ds),
-                      width=w, height=h, point_cloud=find_point_cloud(Path(ds.root)), layout=ds.layout)
+                      width=w, height=h, point_cloud=find_point_cloud(Path(ds.root)), layout=ds.layout,
+                      foreground_pixels=foreground_pixels(ds))
 
 
 def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
@@ -114,7 +135,7 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
     cfg = preset("efficient4d")
     decisions: list[Decision] = []
     dens = dataclasses.replace(cfg.densify, enabled=True, budget_curve=True, start=50, stop=350, every=25,
-                               grad_threshold=5e-6, opacity_reset_every=0, max_gaussians=150_000)
+                               grad_threshold=5e-6, opacity_reset_every=0, max_gaussians=traits.max_gaussians)
     changes: dict = {"preset": "auto", "densify": dens}
     if traits.one_view_per_time:
         # measured on the floor sample with the trainer's time axis: 3 minutes 22.1 and 22.3 dB held out (SSIM
@@ -194,7 +215,15 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
         changes.update(resolution_ramp=((0.1, 4), (0.3, 2)))
         decisions.append(Decision("coarse-to-fine: 1/4 then 1/2 resolution for the first 30%",
                                   f"{traits.width}x{traits.height} images", "--resolution-ramp"))
-    decisions.append(Decision(f"densify up to {dens.max_gaussians:,} Gaussians", "detail where gradients ask",
-                              "--max-gaussians"))
+    # measured held out (the cap, the steps it left, dB), 5 minutes, with the subject's mean opaque pixels per
+    # image: spinner (4.4k) 150k 412-516 steps 26.3-26.4, 80k 693 26.9, 60k 747 27.3, 40k (30k at init) 1083 27.5;
+    # wave (4.2k) 150k 33.6-34.0, 40k 34.5; texture (6.9k) 150k 30.4-30.6, 80k 30.8, 60k 31.0, 40k 30.7; morph
+    # (11.1k) 150k 31.0-31.5, 60k 30.4, 40k 30.1; floor (25.6k; 10 minutes) 150k 22.5-22.7, 60k 22.8
+    fg = "no alpha: every pixel counts" if traits.foreground_pixels is None or not traits.has_alpha else \
+        f"{traits.foreground_pixels:,.0f} on average"
+    decisions.append(Decision(f"densify up to {dens.max_gaussians:,} Gaussians",
+                              f"{GAUSSIANS_PER_FOREGROUND_PIXEL} per opaque pixel of a training image, {fg}, "
+                              f"between {MAX_GAUSSIANS_RANGE[0]:,} and {MAX_GAUSSIANS_RANGE[1]:,}: more would take "
+                              "steps from the time budget", "--max-gaussians"))
     cfg = dataclasses.replace(cfg, **changes)
     return cfg, decisions

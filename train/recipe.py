@@ -100,34 +100,34 @@ class Decision:
         return f"{self.what} ({self.why}; {tail})"
 
 
-def border_opaque_share(ds: Dataset) -> float:
-    """Share of the outermost 2% of pixels (each side) that are opaque, over the training images."""
-    opaque = total = 0
+def opaque_coverage(ds: Dataset) -> tuple[float, float]:
+    """(share of the outermost 2% of pixels, each side, that are opaque over the training images: 1 when an image
+    has no alpha; mean number of opaque pixels per image: every pixel of an image without alpha). Opaque: alpha
+    >= 0.5. One pass over the masks."""
+    ring_opaque = ring_total = 0
+    counts, missing = [], False
     for v in ds.train:
         if v.alpha is None:
-            return 1.0
+            missing = True
+            counts.append(v.size[0] * v.size[1])
+            continue
         h, w = v.alpha.shape
+        opaque = v.alpha >= 128
         b = max(1, round(0.02 * min(w, h)))
-        ring = np.ones((h, w), bool)
-        ring[b:h - b, b:w - b] = False
-        opaque += int((v.alpha[ring] >= 128).sum())
-        total += int(ring.sum())
-    return opaque / max(total, 1)
-
-
-def foreground_pixels(ds: Dataset) -> float:
-    """Mean number of opaque pixels (alpha >= 0.5) per training image; every pixel of an image without alpha."""
-    return float(np.mean([v.size[0] * v.size[1] if v.alpha is None else np.count_nonzero(v.alpha >= 128)
-                          for v in ds.train]))
+        counts.append(int(np.count_nonzero(opaque)))
+        ring_opaque += counts[-1] - int(np.count_nonzero(opaque[b:h - b, b:w - b]))
+        ring_total += w * h - max(h - 2 * b, 0) * max(w - 2 * b, 0)
+    return (1.0 if missing else ring_opaque / max(ring_total, 1)), float(np.mean(counts))
 
 
 def read_traits(ds: Dataset) -> DataTraits:
     w, h = ds.train[0].size
+    border_opaque, foreground_pixels = opaque_coverage(ds)
     return DataTraits(images=len(ds.train), frames=len(ds.frame_times),
                       views_per_time=len(ds.train) / max(len(ds.frame_times), 1),
-                      has_alpha=any(v.alpha is not None for v in ds.train), border_opaque=border_opaque_share(ds),
+                      has_alpha=any(v.alpha is not None for v in ds.train), border_opaque=border_opaque,
                       width=w, height=h, point_cloud=find_point_cloud(Path(ds.root)), layout=ds.layout,
-                      foreground_pixels=foreground_pixels(ds))
+                      foreground_pixels=foreground_pixels)
 
 
 def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:

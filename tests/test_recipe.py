@@ -15,7 +15,7 @@ from splatreel.cli import main
 from splatreel.train.config import preset
 from splatreel.train.data import load_dataset
 from splatreel.train.points import find_point_cloud, read_point_cloud
-from splatreel.train.recipe import auto_recipe, read_traits
+from splatreel.train.recipe import MATRIX_TEMPORAL_STD_FRAMES, auto_recipe, read_traits
 from splatreel.train.trainer import Trainer
 
 from conftest import sample_dataset
@@ -40,8 +40,9 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert cfg.lambda_scale_ratio == 0.0 and cfg.densify.enabled and cfg.densify.budget_curve
     assert cfg.resolution_ramp == ()  # 64 px: nothing to gain from coarser images
     assert cfg.batch_size == 8 and cfg.static_share == 0.0
-    assert cfg.t_scale_init_frames == preset("efficient4d").t_scale_init_frames
+    assert cfg.t_scale_init_frames == MATRIX_TEMPORAL_STD_FRAMES < preset("efficient4d").t_scale_init_frames
     text = decisions_text(decisions)
+    assert "temporal std-dev 1 frame at init" in text and "--t-scale-init" in text
     assert "image matrix" in text and "a bounded object" in text and "--minutes" in text
     assert "8 images per step" in text and "--batch-size" in text
     assert cfg.clip_duration == 5.0 and cfg.lr_quats_final == pytest.approx(0.1 * cfg.lr_quats)

@@ -240,3 +240,12 @@ def test_resume_with_densification_equals_uninterrupted(matrix, tmp_path):
 
 def test_named_presets_are_kept():
     assert preset("efficient4d").preset == "efficient4d" and preset("full").densify.enabled
+
+
+def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tmp_path, capsys):
+    out = tmp_path / "floor.safetensors"
+    assert main(["train", str(small_floor), "--out", str(out), "--iters", "2", "--num-gaussians", "300",
+                 "--inbetween-share", "0.3", "--flow-motion-at", "0.5", "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "--flow-motion-at and --inbetween-share ignored: no camera films two consecutive frames" in said
+    assert out.exists()

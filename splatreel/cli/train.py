@@ -71,11 +71,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flow-motion-at", type=fraction, metavar="F",
                    help="at this share of the run, set every Gaussian's velocity once from the optical flow between "
                         "each camera's consecutive frames, lifted to 3D by the model's depth (default: the recipe's, "
-                        "0.3 for an image matrix; 0 = never; needs cameras that film consecutive frames)")
+                        "0.3 for an image matrix; 0 = never; needs cameras that film consecutive frames, else it is "
+                        "ignored with a note)")
     p.add_argument("--inbetween-share", type=fraction, metavar="F",
                    help="share of the images a step draws that are frames optical flow interpolates half-way "
                         "between a camera's consecutive frames (default: the recipe's, 0.25 for an image matrix; "
-                        "0 = none; needs cameras that film consecutive frames)")
+                        "0 = none; needs cameras that film consecutive frames, else it is ignored with a note)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -169,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     from splatreel.checkpoint_file import read_metadata
     from splatreel.errors import SplatreelError
     from splatreel.train.alpha_conflicts import describe
-    from splatreel.train.data import load_dataset
+    from splatreel.train.data import camera_videos, load_dataset
     from splatreel.train.trainer import Trainer
 
     if not args.resume:  # refuse before the dataset is read (that can take minutes)
@@ -194,6 +195,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"splatreel train: {ds.summary()}; preset {cfg.preset}, {length}" + (":" if decisions else ""))
     for d in decisions:
         print(f"  - {d.line(given_value(args, d.option))}")
+    unused = [o for o, v in (("--flow-motion-at", cfg.flow_motion_at), ("--inbetween-share", cfg.inbetween_share)) if v]
+    if unused and not camera_videos(ds):  # the recipe sets them only for videos: the user asked
+        print(f"splatreel train: {' and '.join(unused)} ignored: no camera films two consecutive frames, so there is "
+              "no flow to follow")
     print(f"splatreel train: background {background_name(ds.background)}: {ds.background_reason}"
           + ("" if ds.background_reason == "--background" else "; --background R G B to change"))
     trainer = Trainer(ds, cfg, args.out, resume=args.resume, force=args.force, progress=not args.quiet,

@@ -186,9 +186,6 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
                                       "between each camera's consecutive frames",
                                       "the model is played at every time, and key frames alone leave the motion "
                                       "between them free", "--inbetween-share"))
-        decisions.append(Decision("8 images per step", "steps averaged over more views and times fit a matrix "
-                                  "better in the same time", "--batch-size"))
-        if traits.frames > 1:
             # measured held out, 5 minutes (steps in brackets), at init 0.35 / 0.5 / 1.0 / Efficient4D's 1.73 frames:
             # spinner 27.10 (2320) / 27.46 (2036) / 27.60 (1654) / 27.10 (1042); texture - / 31.38 (1780) / 31.30
             # (1320) / 30.67-30.99; morph - / 30.39 (1417) / 30.45 (1204) / 30.57 (1176); wave 34.82 at 0.5 (2016),
@@ -198,6 +195,8 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
             decisions.append(Decision(f"temporal std-dev {MATRIX_TEMPORAL_STD_FRAMES:g} frame at init",
                                       "every time has its own views: a Gaussian that lives longer blurs what moves, "
                                       "and fewer alive at a time make a step cheaper", "--t-scale-init"))
+        decisions.append(Decision("8 images per step", "steps averaged over more views and times fit a matrix "
+                                  "better in the same time", "--batch-size"))
     if traits.frames > 1:
         # measured held out (half-way times), 5 minutes: the clip as 1, 3, 5 and 15 time units scored 24.2, 25.0,
         # 25.4 and 24.7 dB on the spinner; at 5 units with a constant rotation rate texture fell 30.3 -> 28.2 and

@@ -4,6 +4,7 @@ the trainer drawing them."""
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -38,9 +39,10 @@ def textured_square(shift: float) -> np.ndarray:
 def test_a_translation_is_interpolated_half_way():
     a, b, truth = textured_square(0.0), textured_square(8.0), textured_square(4.0)
     as_bytes = lambda im: (im * 255 + 0.5).astype(np.uint8)  # noqa: E731
-    mid = interpolate_midway(a, b, as_bytes(a), as_bytes(b))
+    mid, trust = interpolate_midway(a, b, as_bytes(a), as_bytes(b))
     assert psnr(mid, truth) > psnr(0.5 * (a + b), truth) + 10  # a cross-fade shows two half copies
     assert psnr(mid, truth) > 30
+    assert trust.shape == (96, 96) and trust.dtype == np.float32 and trust.mean() > 0.95
 
 
 def test_the_spinners_in_between_frames_beat_the_nearest_frame_and_a_cross_fade():
@@ -51,7 +53,8 @@ def test_the_spinners_in_between_frames_beat_the_nearest_frame_and_a_cross_fade(
     cfg = DatasetConfig(views=8, frames=16, size=128)
     renderer, box = MeshRenderer(), get_sample("spinner")
     on_white = lambda v: v.image / 255 * (v.alpha[..., None] / 255) + 1 - v.alpha[..., None] / 255  # noqa: E731
-    scores = {"flow": [], "cross-fade": [], "nearest": []}
+    scores = {"flow": [], "cross-fade": [], "nearest": [], "trusted": []}
+    left_out = []
     for azimuth in (0.0, 135.0):
         camera = _camera(cfg, cfg.elevation, azimuth)
         for f in (2, 9):
@@ -59,19 +62,24 @@ def test_the_spinners_in_between_frames_beat_the_nearest_frame_and_a_cross_fade(
             views = [SampleView("x", k, t, azimuth, cfg.elevation, camera) for k, t in enumerate(times)]
             a, truth, b = (DatasetImage(im[..., :3].copy(), im[..., 3].copy(), camera, t, 0, k, "x")
                            for k, ((_, im), t) in enumerate(zip(render_views(box, views, renderer), times)))
-            mid = midway_view(a, b, (1.0, 1.0, 1.0))
+            frame = midway_view(a, b, (1.0, 1.0, 1.0))
+            mid, trusted = frame.view, frame.trust > 0.5
             assert mid.time == pytest.approx(truth.time) and mid.camera is camera
             scores["flow"].append(psnr(on_white(mid), on_white(truth)))
+            scores["trusted"].append(psnr(on_white(mid)[trusted], on_white(truth)[trusted]))
+            left_out.append(1 - trusted.mean())
             scores["cross-fade"].append(psnr(0.5 * (on_white(a) + on_white(b)), on_white(truth)))
             scores["nearest"].append(psnr(on_white(a), on_white(truth)))
     mean = {k: np.mean(v) for k, v in scores.items()}
     # measured 28.6 / 24.0 / 21.4 dB at 256 px, 16 views
     assert mean["flow"] > mean["cross-fade"] + 2 and mean["flow"] > mean["nearest"] + 4, mean
+    # the trust leaves out few pixels, and they carry much of the error
+    assert np.mean(left_out) < 0.1 and mean["trusted"] > mean["flow"] + 1, (mean, left_out)
 
 
 def test_one_in_between_frame_per_pair_of_consecutive_frames(spinner, small_floor):
     ds = load_dataset(spinner)
-    frames = inbetween_views(ds)
+    frames = [f.view for f in inbetween_views(ds)]
     assert len(frames) == 4 * 4
     mids = sorted({v.time for v in frames})
     times = ds.frame_times
@@ -90,3 +98,10 @@ def test_the_trainer_draws_in_between_frames_at_their_share(spinner, tmp_path, s
     drawn = [trainer._pick() >= len(ds.train) for _ in range(400)]
     assert abs(np.mean(drawn) - share) < 0.08
     assert trainer.train_step()[0] > 0
+    if share:  # an in-between frame's loss is weighted by its trust, at every resolution of the ramp
+        first = len(ds.train)
+        for factor in (1, 2):
+            weights = trainer._loss_weights(first, factor)
+            trust = trainer.inbetween[0].trust
+            expected = trust if factor == 1 else cv2.resize(trust, (32, 32), interpolation=cv2.INTER_AREA)
+            assert all(np.allclose(w.cpu().numpy(), expected) for w in weights)

@@ -130,10 +130,11 @@ class Trainer:
         self.losses: list[float] = []
         # the images the steps draw from: the training images, then the in-between frames the flow interpolates
         self.inbetween = inbetween_views(dataset) if config.inbetween_share else []
-        self._views_at: dict[int, list[DatasetImage]] = {1: dataset.train + self.inbetween}
+        self._views_at: dict[int, list[DatasetImage]] = {1: dataset.train + [f.view for f in self.inbetween]}
         self._conf = self._confidence() if config.confidence else {}
         self.alpha_conflicts: AlphaConflicts = find_alpha_conflicts(dataset)
-        self._alpha_weight: dict[tuple[int, int], torch.Tensor | None] = {}
+        # per-pixel loss weights of each image of `_views` by (index, downscale factor): see `_loss_weights`
+        self._pixel_weight: dict[tuple[int, int], torch.Tensor | None] = {}
         if resume:
             self._resume()
         else:
@@ -276,28 +277,28 @@ class Trainer:
         return int(torch.randint(len(self.ds.train), (1,), generator=self.generator))
 
     def _loss_weights(self, i: int, factor: int) -> tuple[torch.Tensor | None, ...]:
-        """Per-pixel weights of training image `i` at 1/`factor` resolution for the L1, D-SSIM and alpha terms:
-        the confidence maps (full resolution only) times the alpha-conflict weight (0 where the image's
-        transparency contradicts the other views, unless `strict_alpha`); none for an in-between frame."""
-        if i >= len(self.ds.train):
-            return None, None, None
+        """Per-pixel weights of image `i` of `_views` at 1/`factor` resolution for the L1, D-SSIM and alpha terms.
+        A training image: the confidence maps (full resolution only) times the alpha-conflict weight (0 where the
+        image's transparency contradicts the other views, unless `strict_alpha`). An in-between frame: its trust."""
         key = (i, factor)
-        if key not in self._alpha_weight:
-            w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected else \
-                self.alpha_conflicts.weight(self.ds.train[i])
+        if key not in self._pixel_weight:
+            if i >= len(self.ds.train):
+                w = self.inbetween[i - len(self.ds.train)].trust
+            else:
+                w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected else \
+                    self.alpha_conflicts.weight(self.ds.train[i])
             if w is not None and factor > 1:
                 import cv2
 
-                size = self._views(factor)[i].size
-                w = cv2.resize(w, size, interpolation=cv2.INTER_AREA)
-            self._alpha_weight[key] = None if w is None else torch.from_numpy(w).to(self.device)
-        w_alpha = self._alpha_weight[key]
+                w = cv2.resize(w, self._views(factor)[i].size, interpolation=cv2.INTER_AREA)
+            self._pixel_weight[key] = None if w is None else torch.from_numpy(w).to(self.device)
+        w_pixel = self._pixel_weight[key]
         conf = self._conf.get(i) if factor == 1 else None
         if conf is None:
-            return w_alpha, w_alpha, w_alpha
-        if w_alpha is None:
+            return w_pixel, w_pixel, w_pixel
+        if w_pixel is None:
             return conf[0], conf[1], None
-        return conf[0] * w_alpha, conf[1] * w_alpha, w_alpha
+        return conf[0] * w_pixel, conf[1] * w_pixel, w_pixel
 
     def train_step(self) -> tuple[float, float]:
         cfg = self.cfg
@@ -327,20 +328,16 @@ class Trainer:
             loss = cfg.lambda_l1 * l1(out.rgb, target, w_rgb) + cfg.lambda_dssim * dssim(out.rgb, target, w_ssim)
             if mask is not None and cfg.lambda_mask:
                 loss = loss + cfg.lambda_mask * l1(out.alpha, mask, w_alpha)
-            if cfg.smooth_weight and not static:
-                if self._nbr is None or self.step % 100 == 0:
-                    self._nbr = knn(self.params["means"].detach(), k=8)
-                velocities = condition_on_time(model.covariance_4d())[1]
-                loss = loss + cfg.smooth_weight * smoothness_loss(velocities, *self._nbr)
-            if cfg.lambda_scale_ratio and len(shown):  # the mean over no Gaussians would be NaN
-                loss = loss + cfg.lambda_scale_ratio * scale_ratio_loss(self.params["log_scales"][shown],
-                                                                        cfg.max_scale_ratio)
             (loss / cfg.batch_size).backward()
             if cfg.densify.enabled and out.means2d.grad is not None:
                 strategy.accumulate(self.strategy_state, out.means2d.grad, out.radii, view.camera.width,
                                     view.camera.height, shown)
             loss_sum += float(loss.detach())
             psnr_sum += psnr(out.rgb, target)
+        regularisers = self._regularisers(model, static)
+        if regularisers is not None:
+            regularisers.backward()
+            loss_sum += float(regularisers.detach()) * cfg.batch_size
         if static:  # static-to-dynamic: time frozen, q_r tied to q_l (static under the 'current' convention)
             for k in ("t_means", "log_t_scales", "quats_r"):
                 self.params[k].grad = None
@@ -352,6 +349,20 @@ class Trainer:
                 self.params["quats_r"].copy_(self.params["quats_l"])
         self.step += 1
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
+
+    def _regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
+        """The step's terms on the Gaussians themselves rather than on an image, once per step (per image they cost
+        as much as the losses): motion smoothness between neighbours and the anisotropy penalty, over every
+        Gaussian; None when neither is on."""
+        cfg, terms = self.cfg, []
+        if cfg.smooth_weight and not static:
+            if self._nbr is None or self.step % 100 == 0:
+                self._nbr = knn(self.params["means"].detach(), k=8)
+            velocities = condition_on_time(model.covariance_4d())[1]
+            terms.append(cfg.smooth_weight * smoothness_loss(velocities, *self._nbr))
+        if cfg.lambda_scale_ratio and len(self.params["log_scales"]):  # the mean over none would be NaN
+            terms.append(cfg.lambda_scale_ratio * scale_ratio_loss(self.params["log_scales"], cfg.max_scale_ratio))
+        return sum(terms) if terms else None
 
     def _flow_motion_due(self, vstep: float) -> bool:
         at = self.cfg.flow_motion_at

@@ -37,7 +37,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert traits.has_alpha and not traits.open_backdrop and traits.point_cloud is None
     cfg, decisions = auto_recipe(traits)
     assert cfg.preset == "auto" and cfg.minutes == 5.0 and cfg.init == "ball"
-    assert cfg.lambda_scale_ratio == 0.0 and cfg.densify.enabled and cfg.densify.budget_curve
+    assert cfg.lambda_scale_ratio == 0.1 and cfg.densify.enabled and cfg.densify.budget_curve
     assert cfg.resolution_ramp == ()  # 64 px: nothing to gain from coarser images
     assert cfg.batch_size == 8 and cfg.static_share == 0.0
     assert cfg.t_scale_init_frames == MATRIX_TEMPORAL_STD_FRAMES < preset("efficient4d").t_scale_init_frames
@@ -45,6 +45,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert "temporal std-dev 1 frame at init" in text and "--t-scale-init" in text
     assert "image matrix" in text and "a bounded object" in text and "--minutes" in text
     assert "8 images per step" in text and "--batch-size" in text
+    assert "anisotropy penalty 0.1 above 10:1" in text and "--scale-ratio-weight" in text
     assert cfg.clip_duration == 5.0 and cfg.lr_quats_final == pytest.approx(0.1 * cfg.lr_quats)
     assert "time units long" in text and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
@@ -96,15 +97,21 @@ def test_static_share_starts_gaussians_static(small_floor, tmp_path, capsys):
 
 
 def test_an_image_whose_time_has_no_live_gaussians_reports_a_finite_loss(small_floor, tmp_path):
-    """The scale-ratio term of one camera per time averaged over no Gaussians was NaN in the reported loss."""
+    """The scale-ratio term averaged over the Gaussians alive at an image's time was NaN in the reported loss when
+    none was. It now acts once per step on every Gaussian: a needle shortens even while nobody is alive."""
     ds = load_dataset(small_floor)
     cfg, _ = auto_recipe(read_traits(ds))
     cfg = dataclasses.replace(cfg.scaled(4), minutes=None, num_gaussians=500, batch_size=1)
     tr = Trainer(ds, cfg, tmp_path / "e.safetensors", progress=False)
     with torch.no_grad():
         tr.params["t_means"][:] = ds.train[0].time + 10.0  # nobody alive at any training time
+        tr.params["log_scales"][0] = torch.tensor([-2.0, -6.0, -6.0])  # a needle, 55:1
+    ratio = lambda: float(tr.params["log_scales"].detach()[0].max() - tr.params["log_scales"].detach()[0].min())  # noqa
+
+    before = ratio()
     loss, _ = tr.train_step()
-    assert cfg.lambda_scale_ratio > 0 and np.isfinite(loss)
+    assert cfg.lambda_scale_ratio > 0 and np.isfinite(loss) and loss > 0
+    assert ratio() < before
 
 
 def test_data_without_alpha_is_an_open_scene(matrix):

@@ -9,14 +9,17 @@ Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the wh
 black instead of the dataset's white: a dark silhouette on white costs far more), `train_view_psnr` ("fit": every
 8th training image, at its key time, where the test views are at in-between times), `upper_bound_psnr` (the exact
 model, `splatreel sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest
-axis ratio is above 10), the decisions of the recipe, what the alpha-agreement test said, and the baselines' PSNR on the same test views:
+axis ratio is above 10, on the 4D Gaussians' spatial scales), `sliced_needle_share` (the same for the 3D Gaussians
+that slicing shows), the decisions of the recipe, what the alpha-agreement test said, and the baselines' PSNR on the
+same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.
 
 `step` is the breakdown of the work per training image (full resolution, the final model) into slicing,
-rasterizer forward, losses, backward and Adam, in milliseconds; a step renders `--batch-size` images, and what it does
-once (finding the live Gaussians, the Adam update) is shared out among them.
+rasterizer forward, losses, backward, the regularisers and Adam, in milliseconds; a step renders `--batch-size`
+images, and what it does once (finding the live Gaussians, the regularisers, the Adam update) is shared out among
+them.
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
     from splatreel.covariance import alive_at
 
     cfg, ds = trainer.cfg, trainer.ds
-    phases = dict.fromkeys(("slice", "raster forward", "losses", "backward", "adam"), 0.0)
+    phases = dict.fromkeys(("slice", "raster forward", "losses", "backward", "regularisers", "adam"), 0.0)
     for r in range(repeats):
         view = ds.train[(r * 7) % len(ds.train)]
         target, mask = view_target(view, ds.background, trainer.device)
@@ -66,18 +69,36 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         t3 = time.perf_counter()
         loss.backward()
         t4 = time.perf_counter()
-        trainer.optimizer.step()  # after the model was saved and scored: these steps change nothing reported
+        regularisers = trainer._regularisers(model, static=False)  # once per step, on every Gaussian
+        if regularisers is not None:
+            regularisers.backward()
         t5 = time.perf_counter()
+        trainer.optimizer.step()  # after the model was saved and scored: these steps change nothing reported
+        t6 = time.perf_counter()
         trainer.optimizer.zero_grad(set_to_none=True)
-        for k, dt in zip(phases, (t1 - t, t2 - t1, t3 - t2, t4 - t3, (t5 - t4) / cfg.batch_size)):
+        for k, dt in zip(phases, (t1 - t, t2 - t1, t3 - t2, t4 - t3, (t5 - t4) / cfg.batch_size,
+                                  (t6 - t5) / cfg.batch_size)):
             phases[k] += 1000.0 * dt / repeats
     return {k: round(v, 1) for k, v in phases.items()}
 
 
 def needle_share(trainer, ratio: float = 10.0) -> float:
-    """Share of Gaussians whose largest spatial std-dev is more than `ratio` times their smallest."""
+    """Share of Gaussians whose largest spatial std-dev is more than `ratio` times their smallest (the 4D
+    Gaussian's own spatial scales, which the anisotropy penalty acts on)."""
     ls = trainer.params["log_scales"].detach()
     return float(((ls.max(-1).values - ls.min(-1).values) > math.log(ratio)).float().mean())
+
+
+def sliced_needle_share(trainer, ratio: float = 10.0) -> float:
+    """The same for the 3D Gaussians that slicing shows (the conditional covariance, the same at every time): what
+    the viewer draws."""
+    import torch
+
+    from splatreel.covariance import condition_on_time
+
+    with torch.no_grad():
+        var = torch.linalg.eigvalsh(condition_on_time(trainer.model().covariance_4d())[0]).clamp_min(1e-30)
+    return float((var[:, -1] / var[:, 0] > ratio * ratio).float().mean())
 
 
 def upper_bound(name: str, ds) -> float | None:
@@ -145,6 +166,7 @@ def main() -> None:
                          "nearest_image_psnr": round(base["nearest_image"], 3),
                          "median_image_psnr": round(base["median_image"], 3),
                          "needle_share": round(needle_share(tr), 4),
+                         "sliced_needle_share": round(sliced_needle_share(tr), 4),
                          "decisions": [d.line() for d in decisions],
                          "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
@@ -159,9 +181,11 @@ def main() -> None:
               f"{r['test_psnr']:>10.2f}{r['test_ssim']:>8.4f}{r['test_psnr_on_black']:>9.2f}"
               f"{r['train_view_psnr']:>7.2f}{bound:>7}"
               f"{r['nearest_image_psnr']:>9.2f}"
-              f"{r['median_image_psnr']:>8.2f}{100 * r['needle_share']:>8.2f}%")
+              f"{r['median_image_psnr']:>8.2f}{100 * r['needle_share']:>8.2f}%"
+              f"{100 * r['sliced_needle_share']:>7.2f}%")
     if args.profile_steps:
-        print("\nstep breakdown, ms per training image (full resolution, final model; Adam shared out over the batch)")
+        print("\nstep breakdown, ms per training image (full resolution, final model; the regularisers and Adam shared "
+              "out over the batch)")
         keys = list(rows[0]["step"]) if rows else []
         print(f"{'sample':<9}" + "".join(f"{k:>16}" for k in keys) + f"{'total':>10}")
         for r in rows:

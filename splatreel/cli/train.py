@@ -60,8 +60,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "one, else frustum for an open floor or backdrop, else ball)")
     p.add_argument("--init-points", metavar="FILE", help="point cloud (PLY or COLMAP points3D) to initialise on")
     p.add_argument("--scale-ratio-weight", type=non_negative_number, metavar="W",
-                   help="penalty on Gaussians more than 10:1 anisotropic (default: the recipe's, 0.1 for one camera "
-                        "per time, else 0)")
+                   help="penalty on Gaussians more than 10:1 anisotropic (default: the recipe's, 0.1; the named "
+                        "presets 0)")
     p.add_argument("--t-scale-init", type=positive_number, metavar="FRAMES",
                    help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
     p.add_argument("--clip-duration", type=positive_number, metavar="UNITS",

@@ -39,7 +39,7 @@ def test_bundled_checkpoint_is_small_and_says_how_it_was_made(bundled):
     assert TRAINED == ("spinner",)
     assert isinstance(bundled.model, Gaussians4D) and 50_000 < len(bundled.model) <= 100_000  # densified, capped
     assert bundled.provenance["tool"] == "splatreel train"
-    assert bundled.provenance["preset"] == "auto" and bundled.training["iteration"] == 500
+    assert bundled.provenance["preset"] == "auto" and bundled.training["iteration"] == 3000
     assert bundled.views and bundled.background == (1.0, 1.0, 1.0)  # its cameras and the D-NeRF white
 
 

@@ -255,4 +255,5 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
                  "--inbetween-share", "0.3", "--flow-motion-at", "0.5", "--quiet"]) == 0
     said = capsys.readouterr().out
     assert "--flow-motion-at and --inbetween-share ignored: no camera films two consecutive frames" in said
+    assert "preset auto, 2 iterations" in said and "10 minutes (" in said and "--iters 2 given instead)" in said
     assert out.exists()

@@ -96,9 +96,12 @@ class Decision:
     option: str
 
     def line(self, given: str | None = None) -> str:
-        """One line for the user; `given` is the option's value when the command line overrode the decision."""
+        """One line for the user; `given` is the option's value when the command line overrode the decision, or
+        another option that replaced it (e.g. '--iters 3000' for the time budget)."""
         if given is None:
             tail = f"{self.option} to change"
+        elif given.startswith("--"):
+            tail = f"{given} given instead"
         else:
             tail = f"{self.option} {given} given" if given else f"{self.option} given"
         return f"{self.what} ({self.why}; {tail})"

@@ -69,7 +69,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         t3 = time.perf_counter()
         loss.backward()
         t4 = time.perf_counter()
-        regularisers = trainer._regularisers(model, static=False)  # once per step, on every Gaussian
+        regularisers = trainer.regularisers(model, static=False)  # once per step, on every Gaussian
         if regularisers is not None:
             regularisers.backward()
         t5 = time.perf_counter()

@@ -95,13 +95,13 @@ class Decision:
     why: str
     option: str
 
-    def line(self, given: str | None = None) -> str:
-        """One line for the user; `given` is the option's value when the command line overrode the decision, or
-        another option that replaced it (e.g. '--iters 3000' for the time budget)."""
-        if given is None:
+    def line(self, given: str | None = None, instead: str | None = None) -> str:
+        """One line for the user; `given` is the option's value when the command line overrode the decision,
+        `instead` another option that replaced it (e.g. '--iters 3000' for the time budget)."""
+        if instead is not None:
+            tail = f"{instead} given instead"
+        elif given is None:
             tail = f"{self.option} to change"
-        elif given.startswith("--"):
-            tail = f"{given} given instead"
         else:
             tail = f"{self.option} {given} given" if given else f"{self.option} given"
         return f"{self.what} ({self.why}; {tail})"

@@ -334,7 +334,7 @@ class Trainer:
                                     view.camera.height, shown)
             loss_sum += float(loss.detach())
             psnr_sum += psnr(out.rgb, target)
-        regularisers = self._regularisers(model, static)
+        regularisers = self.regularisers(model, static)
         if regularisers is not None:
             regularisers.backward()
             loss_sum += float(regularisers.detach()) * cfg.batch_size
@@ -350,7 +350,7 @@ class Trainer:
         self.step += 1
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
 
-    def _regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
+    def regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
         """The step's terms on the Gaussians themselves rather than on an image, once per step (per image they cost
         as much as the losses): motion smoothness between neighbours and the anisotropy penalty, over every
         Gaussian; None when neither is on."""

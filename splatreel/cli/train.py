@@ -194,10 +194,9 @@ def run(args: argparse.Namespace) -> int:
     length = f"{cfg.minutes:g} minutes" if cfg.minutes else f"{cfg.iters} iterations"
     print(f"splatreel train: {ds.summary()}; preset {cfg.preset}, {length}" + (":" if decisions else ""))
     for d in decisions:
-        given = given_value(args, d.option)
-        if d.option == "--minutes" and given is None and args.iters:  # a count of iterations replaces the budget
-            given = f"--iters {args.iters}"
-        print(f"  - {d.line(given)}")
+        # a count of iterations replaces the time budget
+        instead = f"--iters {args.iters}" if d.option == "--minutes" and args.iters and not args.minutes else None
+        print(f"  - {d.line(given_value(args, d.option), instead)}")
     unused = [o for o, v in (("--flow-motion-at", cfg.flow_motion_at), ("--inbetween-share", cfg.inbetween_share)) if v]
     if unused and not camera_videos(ds):  # the recipe sets them only for videos: the user asked
         print(f"splatreel train: {' and '.join(unused)} ignored: no camera films two consecutive frames, so there is "

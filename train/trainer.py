@@ -351,9 +351,9 @@ class Trainer:
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
 
     def regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
-        """The step's terms on the Gaussians themselves rather than on an image, once per step (per image they cost
-        as much as the losses): motion smoothness between neighbours and the anisotropy penalty, over every
-        Gaussian; None when neither is on."""
+        """The step's terms on the Gaussians themselves rather than on an image, once per step (they do not depend
+        on the image): motion smoothness between neighbours and the anisotropy penalty, over every Gaussian; None
+        when neither is on."""
         cfg, terms = self.cfg, []
         if cfg.smooth_weight and not static:
             if self._nbr is None or self.step % 100 == 0:

@@ -220,14 +220,17 @@ def to_y_up(vectors: np.ndarray, up_axis: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class LinearMotion:
-    """A native 4D model as Gaussians that move linearly and fade in and out (float64 arrays, model order): what
-    formats of moving splats (``.splatv``, ``.4dgs``, the web player) store. Exact for native 4D Gaussians (Yang et
-    al. 2024): the slice at t is the conditional Gaussian, whose mean moves linearly and whose covariance is fixed.
+    """A native 4D model as Gaussians that move along a polynomial path and fade in and out (float64 arrays, model
+    order): what formats of moving splats (``.splatv``, ``.4dgs``, the web player) store. Exact for native 4D
+    Gaussians (Yang et al. 2024): the slice at t is the conditional Gaussian, whose covariance is fixed and whose mean
+    is means + velocity tau + acceleration tau^2 / 2 (tau = t - mu_t): linear for native 4DGS (acceleration 0), with
+    the quadratic term of Spacetime Gaussians (Li et al., CVPR 2024) for a model with `Gaussians4D.accelerations`.
 
     Attributes:
         means: ``[N, 3]`` mu_xyz, the conditional mean at the Gaussian's own time.
         t_means: ``[N]`` mu_t.
-        velocity: ``[N, 3]`` Σ_xt / Σ_tt, per unit of model time.
+        velocity: ``[N, 3]`` Σ_xt / Σ_tt, per unit of model time: the velocity at mu_t.
+        acceleration: ``[N, 3]`` the model's accelerations, per unit of model time squared; zeros when it has none.
         var_t: ``[N]`` Σ_tt: opacity(t) = opacity * exp(-(t - mu_t)^2 / (2 var_t)).
         scales, quats: ``[N, 3]`` std-devs and ``[N, 4]`` w-first rotations of the conditional covariance.
         opacity: ``[N]`` sigmoid of the logit.
@@ -239,6 +242,7 @@ class LinearMotion:
     means: np.ndarray
     t_means: np.ndarray
     velocity: np.ndarray
+    acceleration: np.ndarray
     var_t: np.ndarray
     scales: np.ndarray
     quats: np.ndarray
@@ -248,7 +252,8 @@ class LinearMotion:
 
 
 def linear_motion(model, format_name: str) -> LinearMotion:
-    """`LinearMotion` of a native 4D model; ExportError naming `format_name` for a model of another kind."""
+    """`LinearMotion` of a native 4D model (with its accelerations, if any); ExportError naming `format_name` for a
+    model of another kind."""
     import math
 
     from splatreel.covariance import condition_on_time
@@ -266,9 +271,12 @@ def linear_motion(model, format_name: str) -> LinearMotion:
         dc = coeffs[:, 0]
         for n in range(1, model.sh_degree_t + 1):
             dc = dc + torch.exp(-0.5 * (2.0 * math.pi * n / span) ** 2 * var_t)[:, None] * coeffs[:, n * k]
+        acceleration = (torch.zeros_like(velocity) if model.accelerations is None
+                        else model.accelerations.detach().to("cpu", torch.float64))
         return LinearMotion(
             means=model.means.double().numpy(), t_means=model.t_means.double().numpy(),
-            velocity=velocity.numpy(), var_t=var_t.numpy(), scales=scales.numpy(), quats=quats.numpy(),
+            velocity=velocity.numpy(), acceleration=acceleration.numpy(), var_t=var_t.numpy(), scales=scales.numpy(),
+            quats=quats.numpy(),
             opacity=model.opacities.double().numpy(), dc_rgb=(0.5 + SH_C0 * dc).clamp(0.0, 1.0).numpy(),
             sh_rest=coeffs[:, 1:k].numpy())
 

@@ -85,8 +85,8 @@ class MotionState:
 
 
 def motion_states(model, times: Sequence[float]) -> list:
-    """States of `model` at `times`: for a native 4D model from its linear motion, conditioned once (the
-    conditional covariance does not change with time); otherwise the model's slices."""
+    """States of `model` at `times`: for a native 4D model from its motion (linear, plus the accelerations' term),
+    conditioned once (the conditional covariance does not change with time); otherwise the model's slices."""
     from .base import linear_motion
 
     if model.kind != "gaussians4d":
@@ -97,7 +97,9 @@ def motion_states(model, times: Sequence[float]) -> list:
         dt = float(t) - g.t_means
         marginal = np.exp(-0.5 * dt * dt / g.var_t)
         opacity = np.where(marginal > TEMPORAL_CULL, g.opacity * marginal, 0.0)
-        out.append(MotionState(float(t), g.means + g.velocity * dt[:, None], opacity, g.scales, g.quats))
+        dt = dt[:, None]
+        out.append(MotionState(float(t), g.means + (g.velocity + 0.5 * g.acceleration * dt) * dt, opacity, g.scales,
+                               g.quats))
     return out
 
 

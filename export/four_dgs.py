@@ -1,11 +1,17 @@
 """``.4dgs`` (the ``fourdgs`` package's container, avala-ai/4dgs): the whole native 4D model in one file, written
 through that package. The mapping and what it keeps are in `splatreel.importers.four_dgs`, which reads it back.
+
+The container's motion is linear. A model with accelerations (`Gaussians4D.accelerations`, the quadratic term of
+Spacetime Gaussians) is still written, with each Gaussian's velocity at its temporal mean (Σ_xt / Σ_tt, exact there)
+and its acceleration dropped; a one-line warning gives how far that moves a Gaussian at most within its own life
+(|t - mu_t| <= 2 sqrt(Σ_tt), where its temporal marginal is above e^-2): max 2 |a| Σ_tt, in model units.
 """
 
 from __future__ import annotations
 
 import argparse
 import io
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +24,17 @@ from .base import ExportError, linear_motion
 PROFILES = ("fine", "default", "coarse")
 
 
+def acceleration_drift(acceleration: np.ndarray, var_t: np.ndarray) -> float:
+    """The most that dropping `acceleration` (``[N, 3]``) moves a Gaussian within 2 temporal std-devs of its mean:
+    max over Gaussians of |a| (2 sqrt(var_t))^2 / 2 = 2 |a| var_t (0 without accelerations)."""
+    if not len(var_t):
+        return 0.0
+    return float((2.0 * np.linalg.norm(acceleration, axis=1) * var_t).max())
+
+
 def four_dgs_bytes(model, duration_sec: float | None = None, profile: str = "fine") -> bytes:
     """The ``.4dgs`` file of a native 4D model; `duration_sec`: the clip's length in seconds (default: one second per
-    unit of model time)."""
+    unit of model time). Warns (one line) when the model's accelerations are dropped (see module doc)."""
     import fourdgs
 
     g = linear_motion(model, ".4dgs")
@@ -29,6 +43,11 @@ def four_dgs_bytes(model, duration_sec: float | None = None, profile: str = "fin
     if not duration > 0:
         raise ExportError(f"--duration must be positive, got {duration}")
     k = duration / (t1 - t0)  # seconds per unit of model time
+    dropped = acceleration_drift(g.acceleration, g.var_t)
+    if dropped > 0:
+        warnings.warn(f".4dgs motion is linear: the model's accelerations are dropped (velocities kept at each "
+                      f"Gaussian's temporal mean), which moves a Gaussian by up to {dropped:.3g} model units within "
+                      "2 sigma_t of its temporal mean", stacklevel=2)
     n = len(model)
     sh = sh_to_bytes(g.sh_rest) if model.sh_degree > 0 else None
     gaussians = fourdgs.GaussianSet(

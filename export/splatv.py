@@ -1,12 +1,15 @@
 """``.splatv`` (splaTV, gsplat.js): the whole 4D model in one file that web players of Spacetime Gaussians play.
 
 The record layout and container are in `splatreel.importers.splatv`, which reads them back. A native 4D Gaussian
-(Yang et al. 2024) maps onto a record exactly, but for its colour (T = t1 - t0, tau = (t - t0) / T the player's
-time):
+(Yang et al. 2024), with or without accelerations, maps onto a record exactly, but for its colour (T = t1 - t0,
+tau = (t - t0) / T the player's time):
 
 * position p0 = mu_xyz, the conditional mean at the Gaussian's own time mu_t;
-* motion (velocity per unit of tau) = T * Σ_xt / Σ_tt; acceleration, jerk and rotation velocity 0 (native motion is
-  linear and the conditional covariance constant);
+* motion: the player moves a splat by m1 dtau + m2 dtau^2 + m3 dtau^3, dtau = tau - c = (t - mu_t) / T (splaTV
+  ``hybrid.js``), so m1 = T * Σ_xt / Σ_tt (the velocity per unit of tau) and m2 = a T^2 / 2, the quadratic
+  coefficient of the model's acceleration a (`Gaussians4D.accelerations`, the polynomial motion of Spacetime
+  Gaussians, Li et al. CVPR 2024; 0 for native linear motion); jerk m3 and rotation velocity 0 (the conditional
+  covariance is constant);
 * rotation and scale = the eigen-decomposition of the conditional covariance Σ_xx - Σ_xt Σ_xtᵀ / Σ_tt;
 * temporal centre c = (mu_t - t0) / T and width s = sqrt(2 Σ_tt) / T, so that the player's exp(-((tau - c) / s)^2)
   equals the native temporal marginal exp(-(t - mu_t)^2 / (2 Σ_tt)) (s at least 1e-4: half floats underflow);
@@ -17,7 +20,7 @@ time):
 What is lost: view dependence (SH degree >= 1) and the remaining time dependence of the colour, 8-bit colour and
 opacity, half-float precision elsewhere; the player cuts a splat at 2.83 sigma and culls it below 0.02 of its peak
 (the reference: 3 sigma, 0.05). Records are written largest (volume times opacity) first, as splaTV's own
-converter does, since the player shows a file while it streams. A keyframed model has no linear motion: it is
+converter does, since the player shows a file while it streams. A keyframed model has no closed-form motion: it is
 refused (export its frames to PLY or glTF instead).
 """
 
@@ -51,6 +54,7 @@ def splatv_records(model) -> np.ndarray:
     records["rgba"][:, :3] = np.round(g.dc_rgb * 255.0)
     records["rgba"][:, 3] = np.round(g.opacity * 255.0)
     records["motion"][:, :3] = g.velocity * span
+    records["motion"][:, 3:6] = 0.5 * g.acceleration * span * span  # the coefficient of dtau^2
     records["trbf"][:, 0] = (g.t_means - t0) / span
     records["trbf"][:, 1] = np.maximum(np.sqrt(2.0 * g.var_t) / span, MIN_WIDTH)
     importance = g.scales.prod(1) * g.opacity

@@ -8,8 +8,10 @@ data file):
 * native 4D (Yang et al., "Real-time Photorealistic Dynamic Scene Representation and Rendering with 4D Gaussian
   Splatting", ICLR 2024): per Gaussian the conditional mean at its temporal centre mu_x, the velocity
   v = Σ_xt / Σ_tt, 1 / (2 Σ_tt), and the constant conditional covariance Σ_xx - Σ_xt Σ_xtᵀ / Σ_tt
-  (`splatreel.covariance.condition_on_time`) as scales and a rotation (`decompose_covariance_3d`). At t the mean is
-  mu_x + v (t - mu_t) and the opacity sigmoid(o) exp(-(t - mu_t)^2 / (2 Σ_tt)), culled at or below TEMPORAL_CULL of
+  (`splatreel.covariance.condition_on_time`) as scales and a rotation (`decompose_covariance_3d`), and the
+  acceleration a when the model has non-zero `Gaussians4D.accelerations` (the quadratic motion of Spacetime
+  Gaussians, Li et al. CVPR 2024). At t the mean is mu_x + v (t - mu_t) + a (t - mu_t)^2 / 2 (a = 0 without
+  accelerations) and the opacity sigmoid(o) exp(-(t - mu_t)^2 / (2 Σ_tt)), culled at or below TEMPORAL_CULL of
   its peak; the colour is the SH of the kept degree with the time terms summed with cos(2 pi n (mu_t - t) / T)
   (`splatreel.sh.collapse_time`), + 0.5 clamped at 0;
 * keyframed: every key's means, rotations, scales, opacities and SH; the page interpolates between the two keys
@@ -22,8 +24,23 @@ whenever the view or t changes, and blends premultiplied colour with "over".
 
 ``splats.bin`` layout (little-endian): the 4 bytes ``SRWB``, u32 L, L bytes of UTF-8 JSON (`_header`: what the
 model is, the constants, the camera to start from, and each array's byte offset after the header, type and shape),
-then the arrays, each starting on a 16-byte boundary. ``--quantize`` stores the geometry as half floats and the
-colour coefficients as 8 bits per value with a per-texel-slot linear range (``lo + step * byte``).
+then the arrays, each starting on a 16-byte boundary: ``geom``, ``geom_texels`` RGBA texels per Gaussian (and key),
+and ``sh``, the colour coefficients (coefficient-major r g b, zero-padded to whole texels). The geometry texels:
+
+==========  ==========================================  ==============================================
+texel       native 4D                                   keyframed (one row per key and Gaussian)
+==========  ==========================================  ==============================================
+0           mu_x (xyz), mu_t                            mean (xyz), opacity
+1           v = Σ_xt / Σ_tt (xyz), 1 / (2 Σ_tt)         0
+2           rotation (w, x, y, z)                       rotation (w, x, y, z)
+3           scales (xyz), sigmoid(o)                    scales (xyz), 0
+4           acceleration (xyz), 0: only when            (none)
+            ``geom_texels`` is 5
+==========  ==========================================  ==============================================
+
+``geom_texels`` is 5 for a native model with non-zero accelerations and 4 otherwise (linear native models and
+keyframed ones keep the 4-texel layout and size). ``--quantize`` stores the geometry as half floats and the colour
+coefficients as 8 bits per value with a per-texel-slot linear range (``lo + step * byte``).
 """
 
 from __future__ import annotations
@@ -76,7 +93,8 @@ def _sh_slots(coeffs: np.ndarray, degree: int, degree_t: int, keep: int) -> np.n
 
 
 def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(geometry ``[rows, 4 texels, 4]``, SH ``[rows, S]`` before degree lowering, model fields of the header)."""
+    """(geometry ``[rows, T texels, 4]``, SH ``[rows, S]`` before degree lowering, model fields of the header);
+    T = 5 for a native model with non-zero accelerations, else 4 (see module doc)."""
     import torch
 
     if model.kind == "gaussians4d":
@@ -87,14 +105,17 @@ def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
             cov3, velocity, var_t = condition_on_time(m.covariance_4d())
             scales, quats = _decompose(cov3)
             n = len(m)
-            geom = np.zeros((n, 4, 4), np.float64)
+            accelerated = m.accelerations is not None and bool((m.accelerations != 0).any())
+            geom = np.zeros((n, 5 if accelerated else 4, 4), np.float64)
             geom[:, 0, :3], geom[:, 0, 3] = m.means.numpy(), m.t_means.numpy()
             geom[:, 1, :3], geom[:, 1, 3] = velocity.numpy(), 0.5 / var_t.numpy()
             geom[:, 2] = quats
             geom[:, 3, :3], geom[:, 3, 3] = scales, m.opacities.numpy()
+            if accelerated:
+                geom[:, 4, :3] = m.accelerations.numpy()
             sh = m.sh_coeffs.numpy()
-        fields = {"kind": "gaussians4d", "count": n, "keys": 1, "key_times": [], "sh_degree": m.sh_degree,
-                  "sh_degree_t": m.sh_degree_t, "duration": float(m.duration)}
+        fields = {"kind": "gaussians4d", "count": n, "keys": 1, "key_times": [], "geom_texels": geom.shape[1],
+                  "sh_degree": m.sh_degree, "sh_degree_t": m.sh_degree_t, "duration": float(m.duration)}
     elif model.kind == "keyframed":
         with torch.no_grad():
             m = model.to(device="cpu", dtype=torch.float64)
@@ -106,8 +127,8 @@ def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
             geom = geom.reshape(f * n, 4, 4)
             sh = m.sh.numpy().reshape(f * n, -1, 3)
         t0, t1 = m.time_range
-        fields = {"kind": "keyframed", "count": n, "keys": f, "key_times": m.times.tolist(), "sh_degree": m.sh_degree,
-                  "sh_degree_t": 0, "duration": float(t1 - t0) or 1.0}
+        fields = {"kind": "keyframed", "count": n, "keys": f, "key_times": m.times.tolist(), "geom_texels": 4,
+                  "sh_degree": m.sh_degree, "sh_degree_t": 0, "duration": float(t1 - t0) or 1.0}
     else:
         raise ExportError(f"export web plays native 4D and keyframed models, not a {model.kind} model")
     if not (np.isfinite(geom).all() and np.isfinite(sh).all()):

@@ -3,7 +3,8 @@
 // corner). Drawn as GL_POINTS through an index buffer holding the back-to-front order, with rasterizer discard;
 // transform feedback writes one 48-byte record per drawn index, in that order, for splat_draw.glsl.
 //
-// Math (one place each, mirrored here): splatreel.covariance (conditional mean moving linearly in t, constant
+// Math (one place each, mirrored here): splatreel.covariance (conditional mean moving linearly in t, plus
+// splatreel.model's acceleration term, constant
 // conditional covariance, unnormalised temporal marginal and its TEMPORAL_CULL), splatreel.sh (SH degrees 0-3 with
 // cosine time terms, colour = max(SH + 0.5, 0), view direction from the sliced mean), and the trainer's EWA
 // projection (OpenCV camera, Jacobian at x/z, y/z clamped to the image plus (FRUSTUM_CLAMP - 1) tan_fov on each
@@ -18,6 +19,7 @@
 
 in vec4 a_mean_t;   // mean xyz at the temporal mean, temporal mean mu_t
 in vec4 a_motion;   // velocity xyz, 1 / (2 Sigma_tt) (0: no temporal fade)
+in vec4 a_accel;    // acceleration xyz (0: linear motion; splatreel.model.Gaussians4D.accelerations), w unused
 in vec4 a_cov_a;    // conditional covariance c00 c01 c02 c11
 in vec4 a_cov_b;    // c12 c22, opacity, speed |d mean / dt|
 
@@ -124,7 +126,7 @@ void main() {
     float factor = u_smooth_fade ? marginal * smoothstep(TEMPORAL_CULL, 2.0 * TEMPORAL_CULL, marginal) : marginal;
     float opacity = a_cov_b.z * factor;
     if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
-    vec3 mean = a_mean_t.xyz + a_motion.xyz * dt;
+    vec3 mean = a_mean_t.xyz + (a_motion.xyz + 0.5 * a_accel.xyz * dt) * dt;  // splatreel.model: mu + v dt + a dt^2/2
 
     // --- EWA projection (splat_footprint.glsl) ------------------------------------------------------------------
     vec3 p = u_rot * mean + u_trans;

@@ -2,8 +2,8 @@
 
 Layout
 ------
-* Tensors: the model's per-Gaussian tensors under their field names (`Gaussians4D.TENSORS` or
-  `KeyframedGaussians.TENSORS`), float32 or float64, contiguous.
+* Tensors: the model's per-Gaussian tensors under their field names (`Gaussians4D.TENSORS` and those of its
+  `OPTIONAL_TENSORS` it holds, or `KeyframedGaussians.TENSORS`), float32 or float64, contiguous.
 * Metadata: the safetensors header's ``__metadata__`` holds one key ``"splatreel"`` whose value is a JSON object::
 
     {"format": "splatreel", "format_version": 1, "kind": "gaussians4d" | "keyframed",
@@ -101,7 +101,8 @@ def load_checkpoint(path: str | os.PathLike, device: str | torch.device = "cpu")
     if kind not in MODEL_KINDS:
         raise CheckpointError(f"{path}: unknown model kind {kind!r} (expected one of {', '.join(MODEL_KINDS)})")
     cls = MODEL_KINDS[kind]
-    _, arrays = read_arrays(path, cls.TENSORS)  # checksums, dtypes, finiteness, recorded shapes
+    # checksums, dtypes, finiteness, recorded shapes
+    _, arrays = read_arrays(path, cls.TENSORS, getattr(cls, "OPTIONAL_TENSORS", ()))
     tensors = {k: torch.from_numpy(a).to(device) for k, a in arrays.items()}
     try:
         model = cls.from_tensors(tensors, meta.get("model", {}))

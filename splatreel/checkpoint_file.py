@@ -75,15 +75,16 @@ def check_version(meta: dict, path: str | os.PathLike) -> int:
     return version
 
 
-def read_arrays(path: str | os.PathLike, names: tuple[str, ...] | None = None) -> tuple[dict, dict[str, np.ndarray]]:
+def read_arrays(path: str | os.PathLike, names: tuple[str, ...] | None = None,
+                optional: tuple[str, ...] = ()) -> tuple[dict, dict[str, np.ndarray]]:
     """(metadata, ``name -> array``) of a checkpoint, each array checked: its recorded checksum, a float32/float64
-    dtype, finite values. `names`: the tensors that must be there (default: all in the file). Raises
-    `CheckpointError` (one line naming the file and the problem)."""
+    dtype, finite values. `names`: the tensors that must be there (default: all in the file); `optional`: tensors
+    also read when the file has them. Raises `CheckpointError` (one line naming the file and the problem)."""
     path = Path(path)
     f, meta = _open(path)
     check_version(meta, path)
     present = set(f.keys())
-    wanted = tuple(names) if names is not None else tuple(sorted(present))
+    wanted = tuple(names) + tuple(k for k in optional if k in present) if names is not None else tuple(sorted(present))
     missing = [k for k in wanted if k not in present]
     if missing:
         raise CheckpointError(f"{path}: missing tensor(s) {', '.join(missing)}")

@@ -100,6 +100,10 @@ class Gaussians4D:
         sh_degree_t: time (Fourier) degree 0..2.
         time_range: (t0, t1); T = t1 - t0 scales the time terms of the colour.
         rotation_convention: 'current' (official main since 2024-09-15) or 'legacy' (older, Efficient4D).
+        accelerations: ``[N, 3]`` or None. None is native 4DGS: the conditional mean moves linearly. Set, the mean
+            is mu_xyz + v tau + a tau^2 / 2 (tau = t - mu_t): the quadratic term of the polynomial motion of
+            Spacetime Gaussians (Li et al., CVPR 2024), so that a Gaussian can follow a curved path (a turning
+            surface) over its life; the covariance and the temporal marginal stay native.
     """
 
     means: Tensor
@@ -115,10 +119,13 @@ class Gaussians4D:
     sh_degree_t: int = 0
     time_range: tuple[float, float] = (0.0, 1.0)
     rotation_convention: RotationConvention = "current"
+    accelerations: Tensor | None = None
 
     #: Names of the per-Gaussian tensors, in checkpoint order.
     TENSORS = ("means", "t_means", "log_scales", "log_t_scales", "quats_l", "quats_r", "opacity_logits",
                "sh_dc", "sh_rest")
+    #: Tensors a model may hold or not (None when absent).
+    OPTIONAL_TENSORS = ("accelerations",)
 
     def __post_init__(self) -> None:
         self.rotation_convention = parse_convention(self.rotation_convention)
@@ -146,6 +153,8 @@ class Gaussians4D:
             "means": (n, 3), "t_means": (n,), "log_scales": (n, 3), "log_t_scales": (n,), "quats_l": (n, 4),
             "quats_r": (n, 4), "opacity_logits": (n,), "sh_dc": (n, 1, 3), "sh_rest": (n, m - 1, 3),
         }
+        if self.accelerations is not None:
+            expected["accelerations"] = (n, 3)
         for name, shape in expected.items():
             v = getattr(self, name)
             _check(isinstance(v, Tensor), f"{name} must be a torch tensor, got {type(v).__name__}")
@@ -181,8 +190,9 @@ class Gaussians4D:
     def slice(self, t: float, sh_degree_t: int | None = None, rows: Tensor | None = None) -> Gaussians3D:
         """The conditional 3D Gaussians at time `t` (differentiable).
 
-        Means move linearly, covariances are the (time-constant) conditional ones, opacities are multiplied by
-        the unnormalised temporal marginal, and `visible` is False where that marginal is <= 0.05.
+        Means move linearly (plus the accelerations' term when the model has them), covariances are the
+        (time-constant) conditional ones, opacities are multiplied by the unnormalised temporal marginal, and
+        `visible` is False where that marginal is <= 0.05.
         `sh_degree_t` uses fewer cosine time terms of the colour than the model has (0: none).
         `rows` (distinct indices, or a bool mask) slices only those Gaussians, as ``select(rows).slice(t)`` does, without
         gathering every tensor first: training slices the Gaussians alive at each image's time.
@@ -200,13 +210,24 @@ class Gaussians4D:
         elif rows.dtype == torch.bool:
             rows = rows.nonzero()[:, 0]
         means, cov3, velocity, marginal = slice_geometry(*geometry, rows, t, self.rotation_convention)
+        means, velocity = self._accelerated(t, rows, means, velocity)
         return self._sliced(t, sh_degree_t, rows, means, cov3, velocity, marginal)
 
     def _slice_torch(self, t: float, sh_degree_t: int | None) -> Gaussians3D:
         """`slice` of every Gaussian as a torch composition (any dtype and device)."""
         cov3, velocity, var_t = condition_on_time(self.covariance_4d())
         means, marginal, _ = self._at_time(t, velocity, var_t)
+        means, velocity = self._accelerated(t, None, means, velocity)
         return self._sliced(t, sh_degree_t, None, means, cov3, velocity, marginal)
+
+    def _accelerated(self, t: float, rows: Tensor | None, means: Tensor, velocity: Tensor) -> tuple[Tensor, Tensor]:
+        """The linearly moved `means` and their `velocity` (of rows `rows`, None: all) with the acceleration term
+        added at time t: + a tau^2 / 2 and + a tau. Unchanged without accelerations."""
+        if self.accelerations is None:
+            return means, velocity
+        a = self.accelerations if rows is None else self.accelerations[rows]
+        tau = (t - (self.t_means if rows is None else self.t_means[rows]))[:, None]
+        return means + 0.5 * a * tau * tau, velocity + a * tau
 
     def _sliced(self, t: float, sh_degree_t: int | None, rows: Tensor | None, means: Tensor, cov3: Tensor,
                 velocity: Tensor, marginal: Tensor) -> Gaussians3D:
@@ -235,6 +256,7 @@ class Gaussians4D:
         out = []
         for t in times:
             means, marginal, _ = self._at_time(float(t), velocity, var_t)
+            means, _ = self._accelerated(float(t), None, means, velocity)
             out.append((means, marginal > TEMPORAL_CULL))
         return out
 
@@ -244,7 +266,9 @@ class Gaussians4D:
         return self.means + velocity * dt[:, None], temporal_marginal(t, self.t_means, var_t), dt
 
     def tensors(self) -> dict[str, Tensor]:
-        return {name: getattr(self, name) for name in self.TENSORS}
+        """The per-Gaussian tensors by name: `TENSORS`, then the `OPTIONAL_TENSORS` the model holds."""
+        return {name: getattr(self, name) for name in self.TENSORS + self.OPTIONAL_TENSORS
+                if getattr(self, name) is not None}
 
     def metadata(self) -> dict:
         return {"sh_degree": self.sh_degree, "sh_degree_t": self.sh_degree_t,
@@ -252,7 +276,8 @@ class Gaussians4D:
 
     @classmethod
     def from_tensors(cls, tensors: dict[str, Tensor], meta: dict) -> "Gaussians4D":
-        return cls(**{k: tensors[k] for k in cls.TENSORS}, sh_degree=int(meta["sh_degree"]),
+        return cls(**{k: tensors[k] for k in cls.TENSORS},
+                   **{k: tensors[k] for k in cls.OPTIONAL_TENSORS if k in tensors}, sh_degree=int(meta["sh_degree"]),
                    sh_degree_t=int(meta["sh_degree_t"]), time_range=tuple(meta["time_range"]),
                    rotation_convention=meta["rotation_convention"])
 

@@ -3,7 +3,8 @@
 `model_summary` is computed from the model (torch) when a checkpoint is written (`splatreel.checkpoint`), and
 stored in its metadata under ``"summary"``, so that ``info`` can print it without torch. Its keys: ``kind``,
 ``count``, ``time_range``, ``bounds_min``/``bounds_max`` (the visible means over 9 times, `model_bounds`),
-``sh_degree``, ``sh_degree_t``, ``rotation_convention``, ``dtype``, ``num_frames`` (keyframed models),
+``sh_degree``, ``sh_degree_t``, ``rotation_convention``, ``motion`` (native 4D models: ``linear``, or ``quadratic``
+with accelerations), ``dtype``, ``num_frames`` (keyframed models),
 ``std_dev`` and ``opacity`` (median, 99th percentile; max for std-dev) and ``large`` (see `shape_stats`).
 """
 
@@ -65,4 +66,6 @@ def model_summary(model) -> dict:
            "dtype": str(next(iter(model.tensors().values())).dtype).replace("torch.", "")}
     if model.kind == "keyframed":
         out["num_frames"] = int(model.num_frames)
+    if model.kind == "gaussians4d":
+        out["motion"] = "linear" if model.accelerations is None else "quadratic"
     return {**out, **shape_stats(std, opacity, float(np.linalg.norm(hi - lo)))}

@@ -12,17 +12,21 @@ from safetensors.torch import save_file
 from splatreel.checkpoint import FORMAT_VERSION, checkpoint_bytes, load_checkpoint, save_checkpoint
 from splatreel.cli import main
 from splatreel.errors import CheckpointError, OutputExistsError
-from test_model import keyframed, random_model
+from test_model import accelerated, keyframed, random_model
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_roundtrip_is_exact(tmp_path, dtype):
+@pytest.mark.parametrize("dtype, accelerations", [(torch.float32, False), (torch.float64, False),
+                                                  (torch.float32, True)])
+def test_roundtrip_is_exact(tmp_path, dtype, accelerations):
     model = random_model(100, "legacy", dtype=dtype, sh_degree=3, sh_degree_t=2)
+    if accelerations:
+        model = accelerated(model)
     path = save_checkpoint(tmp_path / "m.safetensors", model, background=(1, 1, 1),
                            provenance={"tool": "test"}, training={"iters": 5})
     ck = load_checkpoint(path)
     for k, v in model.tensors().items():
         assert torch.equal(getattr(ck.model, k), v), k
+    assert (ck.model.accelerations is None) == (not accelerations)
     assert (ck.model.sh_degree, ck.model.sh_degree_t, ck.model.time_range, ck.model.rotation_convention) == \
         (3, 2, (0.0, 1.0), "legacy")
     assert ck.background == (1.0, 1.0, 1.0) and ck.provenance == {"tool": "test"} and ck.training == {"iters": 5}
@@ -164,6 +168,13 @@ def test_info_reports_the_model(tmp_path, capsys):
     assert grown["large"] == info["large"] + 1 and grown["std_dev"]["max"] > 19.0
     assert main(["info", str(path)]) == 0
     assert "Gaussians with a std-dev over 10% of the bounds' diagonal" in capsys.readouterr().out
+    # the motion: linear (native), quadratic with accelerations
+    assert info["motion"] == "linear"
+    save_checkpoint(path, accelerated(model), force=True)
+    assert main(["info", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["motion"] == "quadratic"
+    assert main(["info", str(path)]) == 0
+    assert "quadratic (each Gaussian has an acceleration)" in capsys.readouterr().out
 
 
 def test_training_cameras_are_recorded_once_per_camera_and_read_back(tmp_path, capsys):

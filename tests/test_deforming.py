@@ -150,3 +150,18 @@ def test_vertices_stay_on_their_material_points(name, bound, tmp_path):
     vertices = [trimesh.load(p, process=False).vertices for p in paths[:FRAMES]]
     slides = material_slide(vertices, name, times, ref, samples=100000)
     assert max(slides) < bound, slides
+
+
+def test_motion_states_follow_the_accelerations_as_the_slice_does():
+    from dataclasses import replace
+
+    import torch
+
+    from splatreel.export.deforming import motion_states
+    from splatreel.viewer.synthetic import synthetic_model
+
+    model = synthetic_model(300, seed=2, speed=0.4)
+    g = torch.Generator().manual_seed(0)
+    model = replace(model, accelerations=torch.randn(len(model), 3, generator=g, dtype=model.means.dtype))
+    for state, t in zip(motion_states(model, [0.2, 0.9]), (0.2, 0.9)):
+        np.testing.assert_allclose(state.means, model.slice(t).means.double().numpy(), atol=1e-5)

@@ -83,6 +83,33 @@ def test_the_bundled_model_renders_the_same_after_the_round_trip(tmp_path, capsy
 
 
 
+def test_accelerations_are_dropped_with_a_warning_and_the_velocity_at_the_temporal_mean_kept(model, tmp_path):
+    import dataclasses
+    import warnings
+
+    import fourdgs
+    import torch
+
+    g = torch.Generator().manual_seed(3)
+    fast = dataclasses.replace(model, accelerations=0.5 * torch.randn(len(model), 3, generator=g))
+    var_t = model.covariance_4d().double()[:, 3, 3].numpy()  # Σ_tt
+    worst = float((2.0 * fast.accelerations.double().norm(dim=1).numpy() * var_t).max())  # |a| (2 σ_t)^2 / 2
+    with pytest.warns(UserWarning, match="accelerations are dropped") as caught:
+        data = four_dgs_bytes(fast)
+    (message,) = [str(w.message) for w in caught]
+    assert f"up to {worst:.3g} model units" in message and "\n" not in message
+    # still written: the linear model's own file, with each Gaussian's velocity at its temporal mean
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a linear model: no warning
+        assert data == four_dgs_bytes(model)
+    (tmp_path / "fast.4dgs").write_bytes(data)
+    assert fourdgs.read(str(tmp_path / "fast.4dgs")).gaussians.count == len(model)
+    ckpt = save_checkpoint(tmp_path / "fast.safetensors", fast)
+    with pytest.warns(UserWarning, match="accelerations are dropped"):  # the CLI prints it as one warning line
+        assert main(["export", "4dgs", str(ckpt), "--out", str(tmp_path / "cli.4dgs"), "--quiet"]) == 0
+    assert (tmp_path / "cli.4dgs").read_bytes() == data
+
+
 def test_what_4dgs_cannot_hold_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(ExportError, match="keyframed"):
         four_dgs_bytes(keyframed())

@@ -234,3 +234,48 @@ def test_crop_box_errors(values, message):
 
     with pytest.raises(ModelError, match=message):
         CropBox.of(values)
+
+
+def accelerated(model: Gaussians4D, scale: float = 1.0, seed: int = 5) -> Gaussians4D:
+    """`model` with random accelerations."""
+    from dataclasses import replace
+
+    g = torch.Generator().manual_seed(seed)
+    return replace(model, accelerations=scale * torch.randn(len(model), 3, generator=g, dtype=model.means.dtype))
+
+
+def test_accelerations_bend_the_path_and_nothing_else():
+    linear = random_model(64, "current")
+    model = accelerated(linear)
+    a = model.accelerations
+    for t in (0.0, 0.37, 1.3):
+        tau = (t - model.t_means)[:, None]
+        g, lin = model.slice(t), linear.slice(t)
+        torch.testing.assert_close(g.means, lin.means + 0.5 * a * tau ** 2)
+        torch.testing.assert_close(g.velocities, lin.velocities + a * tau)
+        for name in ("covariances", "opacities", "sh", "visible"):
+            torch.testing.assert_close(getattr(g, name), getattr(lin, name), msg=name)
+        # the fused float32 kernel, a few rows, and the centres agree with the float64 composition
+        rows = torch.arange(0, 64, 3)
+        g32 = model.to(dtype=torch.float32).slice(t, rows=rows)
+        torch.testing.assert_close(g32.means.double(), g.means[rows], rtol=1e-4, atol=1e-4)
+        means, visible = model.centres([t])[0]
+        torch.testing.assert_close(means, g.means)
+    # at its own temporal mean a Gaussian sits where the linear model has it
+    i = 7
+    torch.testing.assert_close(model.slice(float(model.t_means[i])).means[i],
+                               linear.slice(float(model.t_means[i])).means[i])
+
+
+def test_accelerations_are_validated_selected_and_differentiable():
+    model = accelerated(random_model(16, "current"))
+    assert set(model.tensors()) == set(Gaussians4D.TENSORS) | {"accelerations"}
+    assert "accelerations" not in random_model(4, "current").tensors()
+    assert model.select(torch.arange(5)).accelerations.shape == (5, 3)
+    from dataclasses import replace
+
+    with pytest.raises(ModelError, match="accelerations has shape"):
+        replace(model, accelerations=torch.zeros(3, 3, dtype=torch.float64))
+    a = model.accelerations.float().clone().requires_grad_(True)
+    replace(model.to(dtype=torch.float32), accelerations=a).slice(0.9).means.sum().backward()
+    assert a.grad is not None and a.grad.abs().sum() > 0

@@ -105,3 +105,18 @@ def test_one_camera_per_time_changes_nothing(small_floor, tmp_path):
                               flow_motion_at=0.5)
     trainer = Trainer(ds, cfg, tmp_path / "m.safetensors", progress=False)
     assert trainer.set_flow_motion() == 0
+
+
+def test_with_velocities_keeps_the_accelerations_and_the_position_at_the_frame():
+    from test_model import accelerated
+
+    model = accelerated(random_model(64, "current"))
+    times = [0.0, 0.25, 0.5, 0.75, 1.0]
+    velocity = torch.randn(64, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    moved = dataclasses.replace(model, **with_velocities(model, velocity, times))
+    frame = torch.tensor(times, dtype=torch.float64)[torch.argmin((model.t_means.double()[:, None]
+                                                                   - torch.tensor(times)[None].double()).abs(), 1)]
+    for i in (0, 9, 33):  # `velocity` is the velocity at the frame; the Gaussian is still where it was there
+        t = float(frame[i])
+        torch.testing.assert_close(moved.slice(t).velocities[i], velocity[i], rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(moved.slice(t).means[i], model.slice(t).means[i], rtol=1e-4, atol=1e-5)

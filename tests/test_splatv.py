@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import struct
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -82,6 +83,44 @@ def test_read_back_the_slices_match(model, tmp_path):
         np.testing.assert_allclose(b.sh.numpy()[both], a.sh.numpy()[both], atol=0.5 / 255 / 0.2821 + 1e-6)
 
 
+def accelerated(model):
+    """`model` with accelerations large enough to bend each Gaussian's path visibly within its life."""
+    g = torch.Generator().manual_seed(11)
+    return replace(model, accelerations=0.4 * torch.randn(len(model), 3, generator=g, dtype=model.means.dtype))
+
+
+def test_accelerations_are_the_players_quadratic_term_and_come_back(model, tmp_path):
+    fast = accelerated(model)
+    t0, t1 = fast.time_range
+    span = t1 - t0
+    records = splatv_records(fast)
+    index = {tuple(np.round(p, 5)): i for i, p in enumerate(fast.means.numpy())}
+    ids = torch.tensor([index[tuple(np.round(p, 5))] for p in records["position"]])
+    # hybrid.js: p0 + m1 dtau + m2 dtau^2 + m3 dtau^3, dtau = (t - mu_t) / T, so m2 = a T^2 / 2
+    np.testing.assert_allclose(records["motion"][:, 3:6], 0.5 * fast.accelerations.numpy()[ids] * span ** 2,
+                               rtol=2e-3, atol=1e-4)
+    assert not records["motion"][:, 6:].any()
+    path = write_splatv(fast, tmp_path / "fast.splatv")
+    ck = read_splatv(path, time_range=fast.time_range)
+    assert "warnings" not in ck.provenance  # nothing dropped
+    back = ck.model
+    assert back.accelerations is not None
+    np.testing.assert_allclose(back.accelerations.numpy(), fast.accelerations.numpy()[ids], rtol=2e-3, atol=1e-4)
+    linear = replace(back, accelerations=None)
+    for t in (2.5, 4.0, 5.2):
+        a, b = fast.slice(t).select(ids), back.slice(t)
+        both = (a.visible & b.visible).numpy()
+        assert both.mean() > 0.9 * a.visible.float().mean().item()
+        np.testing.assert_allclose(b.means.numpy()[both], a.means.numpy()[both], atol=3e-3)
+        np.testing.assert_allclose(b.velocities.numpy()[both], a.velocities.numpy()[both], atol=3e-3)
+        # away from their temporal means the accelerations move the Gaussians far past that tolerance
+        tau = t - fast.t_means.numpy()[ids.numpy()][both]
+        away = np.abs(tau) > 0.5
+        assert away.sum() > 20
+        miss = np.abs(linear.slice(t).means.numpy()[both] - a.means.numpy()[both]).max(1)
+        assert np.median(miss[away]) > 0.05
+
+
 def test_the_bundled_model_renders_the_same_after_the_round_trip(tmp_path, capsys):
     from splatreel.samples import trained_checkpoint
 
@@ -105,9 +144,10 @@ def test_what_splatv_cannot_hold_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(CheckpointError, match="truncated"):
         read_splatv(tmp_path / "cut.splatv")
     records, cameras = parse_splatv(good)
-    records["motion"][:, 3] = 0.5  # an acceleration: Spacetime Gaussians have them, native 4D ones do not
+    records["motion"][:, 6] = 0.5  # a jerk: Spacetime Gaussians' cubic term, which splatreel models do not have
     from splatreel.importers.splatv import splatv_bytes
 
-    (tmp_path / "acc.splatv").write_bytes(splatv_bytes(records, cameras))
-    ck = read_splatv(tmp_path / "acc.splatv")
-    assert any("acceleration" in w for w in ck.provenance["warnings"])
+    (tmp_path / "jerk.splatv").write_bytes(splatv_bytes(records, cameras))
+    ck = read_splatv(tmp_path / "jerk.splatv")
+    assert any("jerk" in w for w in ck.provenance["warnings"])
+    assert ck.model.accelerations is None  # the quadratic slots are all 0

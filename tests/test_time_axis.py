@@ -80,3 +80,13 @@ def test_retimed_dataset_shares_the_images(tiny):
     assert last.time > 0 and moved.train[-1].image is last.image
     assert moved.train[-1].time == pytest.approx(3.0 * last.time)
     assert [v.time for v in moved.test] == pytest.approx([3.0 * v.time for v in ds.test])
+
+
+def test_retiming_scales_the_accelerations():
+    from test_model import accelerated
+
+    model = accelerated(random_model(32, "current"), scale=3.0)
+    scale, shift = 5.0, 1.0
+    moved = retime_model(model, scale, shift)
+    for t in (0.1, 0.6, 0.95):
+        assert_same_slice(model._slice_torch(t, None), moved._slice_torch(scale * t + shift, None))

@@ -12,7 +12,7 @@ from splatreel.checkpoint import load_checkpoint, save_checkpoint
 from splatreel.constants import ALPHA_THRESHOLD, NEAR_PLANE
 from splatreel.rasterize import project_gaussians
 from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context, render_image
-from splatreel.viewer.selection import MAX_MARKERS, UNDO_LEVELS, Edits, in_rect, marker_segments
+from splatreel.viewer.selection import MAX_MARKERS, UNDO_LEVELS, Edits, centres_at, in_rect, marker_segments
 from splatreel.viewer.sorting import depth_order
 from splatreel.viewer.splats import to_arrays
 from splatreel.viewer.synthetic import synthetic_model
@@ -240,3 +240,15 @@ def test_a_new_model_of_the_same_size_is_sorted_anew():
     after = r.sort(cam, 0.0).boxes[:, 1]
     assert np.all(after < before - 1.0)  # higher up: smaller rows
     r.release()
+
+
+def test_centres_follow_the_accelerations_as_the_slice_does():
+    from dataclasses import replace
+
+    model = synthetic_model(500, seed=6, speed=0.4)
+    g = torch.Generator().manual_seed(2)
+    model = replace(model, accelerations=torch.randn(len(model), 3, generator=g, dtype=model.means.dtype))
+    rows = np.arange(0, 500, 7)
+    for t in (0.1, 0.8):
+        np.testing.assert_allclose(centres_at(to_arrays(model), t, rows), model.slice(t).means[rows].numpy(),
+                                   atol=1e-5)

@@ -241,3 +241,20 @@ def test_fade_mode_accumulates_each_gaussians_temporal_opacity_factor():
     acc, _, _ = value_images(keyed, camera, 0.5, "fade", torch.ones(len(keyed)))
     covered = acc[..., 3] > 0.05
     assert covered.any() and np.allclose(acc[..., 0][covered] / acc[..., 3][covered], 1.0, rtol=1e-3)
+
+
+def test_gl_moves_gaussians_with_their_accelerations_as_the_rasterizer_does():
+    from dataclasses import replace
+
+    linear = synthetic_model(6000, seed=3, radius=0.45, scale=0.015, speed=0.4)
+    g = torch.Generator().manual_seed(0)
+    model = replace(linear, accelerations=4.0 * torch.randn(len(linear), 3, generator=g, dtype=linear.means.dtype))
+    camera = Camera(look_at_c2w((1.3, 1.0, 0.6), (0.0, 0.0, 0.0), "z"), 150.0, 140.0, 70.0, 66.0, 160, 120)
+    for t in (0.15, 0.6):
+        value, alpha_err = compare(model, camera, t)
+        assert value >= MIN_PSNR, (t, value)
+        assert alpha_err < 0.02
+        with torch.no_grad():  # the accelerations move the image: a renderer ignoring them would fail above
+            moved = rasterize(model.slice(t), camera, (0.1, 0.2, 0.3)).rgb.numpy()
+            still = rasterize(linear.slice(t), camera, (0.1, 0.2, 0.3)).rgb.numpy()
+        assert psnr(moved, still) < MIN_PSNR - 10, t

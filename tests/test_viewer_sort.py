@@ -3,6 +3,8 @@ the model's slice, and the worker-thread sorter of the desktop app."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -87,8 +89,12 @@ def reference_order(model, camera, t: float) -> tuple[np.ndarray, np.ndarray]:
     return order, boxes
 
 
-def test_numba_sort_matches_the_trainers_projection():
+@pytest.mark.parametrize("accelerated", [False, True])
+def test_numba_sort_matches_the_trainers_projection(accelerated):
     model = synthetic_model(3000, seed=3, speed=0.5)
+    if accelerated:  # the keys follow the accelerations as the model's slice does
+        g = torch.Generator().manual_seed(1)
+        model = replace(model, accelerations=3.0 * torch.randn(len(model), 3, generator=g, dtype=model.means.dtype))
     splats = to_arrays(model)
     for t in (0.0, 0.37, 1.0):
         cam = orbit(15, 40 + 100 * t, 1.2, fov_deg=60, width=120, height=90)

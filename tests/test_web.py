@@ -21,6 +21,7 @@ import subprocess
 import tempfile
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -37,7 +38,7 @@ from splatreel.viewer.renderer import RenderSettings, render_image
 from splatreel.viewer.synthetic import synthetic_model
 
 from test_model import keyframed
-from test_viewer_sort import swapping_pair
+from test_viewer_sort import gaussians_from_motion, swapping_pair
 
 FLAGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--disable-background-networking", "--disable-component-update", "--no-first-run", "--disable-sync",
@@ -236,6 +237,37 @@ def test_data_file_layout_and_quantize():
     assert header0["sh_degree"] == 0 and header0["sh_texels"] == 2  # 2 time sets x 1 coefficient x rgb, padded
 
 
+def accelerated(model, size: float, seed: int = 0):
+    """`model` with random accelerations of std-dev `size` per axis (units per unit of time squared)."""
+    g = torch.Generator().manual_seed(seed)
+    return replace(model, accelerations=size * torch.randn(len(model), 3, generator=g, dtype=model.means.dtype))
+
+
+def geometry_texels(data: bytes) -> tuple[dict, np.ndarray]:
+    """(header, the geometry texels ``[count, geom_texels, 4]``) of an unquantized ``splats.bin``."""
+    length = int(np.frombuffer(data[4:8], np.uint32)[0])
+    header = json.loads(data[8:8 + length])
+    geom, n, k = header["arrays"]["geom"], header["count"], header["geom_texels"]
+    values = np.frombuffer(data, np.float32, count=geom["bytes"] // 4, offset=8 + length + geom["offset"])
+    return header, values[:4 * k * n].reshape(n, k, 4)
+
+
+def test_accelerations_take_a_fifth_texel_and_only_when_there_are_some():
+    linear = synthetic_model(50, sh_degree=1)
+    header, values = geometry_texels(web_data(linear))
+    assert header["geom_texels"] == 4 and values.shape == (50, 4, 4)
+    same = web_data(replace(linear, accelerations=torch.zeros(50, 3)))  # zero accelerations: the linear file
+    assert same == web_data(linear)
+    model = accelerated(linear, 2.0)
+    header, values = geometry_texels(web_data(model))
+    width, height = header["arrays"]["geom"]["size"]
+    assert header["geom_texels"] == 5 and width * height >= 5 * 50
+    np.testing.assert_allclose(values[:, 4, :3], model.accelerations.numpy(), rtol=1e-6)
+    np.testing.assert_array_equal(values[:, :4], geometry_texels(web_data(linear))[1])  # the others unchanged
+    keyed = json.loads((d := web_data(keyframed()))[8:8 + int(np.frombuffer(d[4:8], np.uint32)[0])])
+    assert keyed["geom_texels"] == 4
+
+
 def test_native_pair_swaps_depth_order_like_the_desktop_renderer(served, browser):
     root, base = served
     model = swapping_pair()
@@ -258,6 +290,37 @@ def test_native_sh_and_time_terms_match_render(served, browser, quantize):
     for t in (0.3, 0.8):
         _, db = check_page(browser, url(f"{base}/{name}/index.html", cam, t), model, cam, t)
         assert db >= MIN_PSNR, (quantize, t, db)
+
+
+@pytest.mark.parametrize("quantize", [False, True])
+def test_accelerated_model_matches_render(served, browser, quantize):
+    root, base = served
+    linear = synthetic_model(300, sh_degree=2, sh_degree_t=1, scale=0.03, seed=6)
+    model = accelerated(linear, 3.0, seed=2)
+    name = f"acc{int(quantize)}"
+    write_web(model, root / name, background=BACKGROUND, up_axis="Z", quantize=quantize)
+    cam = look_at((1.2, -1.5, 0.8), (0.0, 0.0, 0.0), "z", fov_deg=40, width=W, height=H)
+    for t in (0.2, 0.75):
+        img, db = check_page(browser, url(f"{base}/{name}/index.html", cam, t), model, cam, t)
+        assert db >= MIN_PSNR, (quantize, t, db)
+        # the accelerations move the image: a page that ignored them would fail above
+        assert psnr(img, reference(linear, cam, t)) < MIN_PSNR - 5, t
+
+
+def test_accelerated_pair_swaps_depth_order(served, browser):
+    """Red starts in front of blue and, accelerated away from the camera, ends behind it: the page's depth sort
+    must follow the accelerations (its stored mean and velocity alone keep red in front)."""
+    root, base = served
+    pair = gaussians_from_motion([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], torch.eye(3) * 0.15 ** 2, [[0.0, 0.0, 0.0]],
+                                 100.0, 5.0, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    model = replace(pair, accelerations=torch.tensor([[6.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64))
+    write_web(model, root / "accpair", background=BACKGROUND, up_axis="Z")
+    cam = look_at((-4.0, 0.0, 0.0), (0.0, 0.0, 0.0), "z", fov_deg=30, width=W, height=H)
+    centre = (H // 2, W // 2)
+    for t, front in ((0.0, 0), (1.0, 2)):  # red (x = -1) in front at t = 0; at t = 1 red is at x = 2, behind blue
+        img, db = check_page(browser, url(f"{base}/accpair/index.html", cam, t), model, cam, t)
+        assert db >= MIN_PSNR, (t, db)
+        assert img[centre].argmax() == front
 
 
 def test_lower_sh_degree_matches_render_at_that_degree(served, browser):

@@ -64,7 +64,14 @@ class _Motion:
         t_means = model.t_means.detach().double()
         frame = torch.argmin((t_means[:, None] - t[None, :]).abs(), 1)
         dt = t[frame] - t_means
-        return cls(cov3, velocity, var_t, frame.numpy(), dt, model.means.detach().double() + velocity * dt[:, None])
+        position = model.means.detach().double() + velocity * dt[:, None]
+        return cls(cov3, velocity, var_t, frame.numpy(), dt, position + 0.5 * _accelerations(model) * dt[:, None] ** 2)
+
+
+def _accelerations(model: Gaussians4D) -> torch.Tensor:
+    """``[N, 3]`` the model's accelerations in float64 (zeros for linear motion)."""
+    a = model.accelerations
+    return torch.zeros_like(model.means, dtype=torch.float64) if a is None else a.detach().double()
 
 
 @dataclass
@@ -132,7 +139,7 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
     seen = count > 0
     estimate = np.zeros((len(model), 3))
     estimate[seen] = total[seen] / count[seen, None]
-    out = motion.velocity.numpy().copy()
+    out = (motion.velocity + _accelerations(model) * motion.dt[:, None]).numpy()  # the velocity at the frame
     out[seen] = estimate[seen]
     for k in np.unique(frame_of):  # the unseen take their estimated neighbours' mean, frame by frame
         here = frame_of == k
@@ -149,10 +156,12 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
 def with_velocities(model: Gaussians4D, velocity: torch.Tensor, times: list[float]) -> dict[str, torch.Tensor]:
     """New values of the geometry parameters (``means``, ``log_scales``, ``log_t_scales``, ``quats_l``,
     ``quats_r``) for Gaussians moving at `velocity` ``[N, 3]``: the same conditional 3D covariance and temporal
-    variance, and the same position at the frame of `times` nearest each one's temporal mean."""
+    variance, and the same position at the frame of `times` nearest each one's temporal mean. With accelerations
+    (kept), `velocity` is the velocity at that frame."""
     motion = _Motion.of(model, times)
-    v = velocity.double()
-    means = motion.position - v * motion.dt[:, None]  # the position at the frame stays
+    a, dt = _accelerations(model), motion.dt[:, None]
+    v = velocity.double() - a * dt
+    means = motion.position - v * dt - 0.5 * a * dt * dt  # the position at the frame stays
     scales, scale_t, q_l, q_r = decompose_covariance_4d(
         covariance_4d_from_motion(motion.cov3, v, motion.var_t), model.rotation_convention)
     tiny = torch.finfo(torch.float64).tiny

@@ -73,7 +73,8 @@ def retime_model(model: Gaussians4D, scale: float, shift: float) -> Gaussians4D:
     return replace(model, t_means=(scale * model.t_means.detach().double() + shift).to(dtype),
                    log_scales=scales.clamp_min(tiny).log().to(dtype),
                    log_t_scales=scale_t.clamp_min(tiny).log().to(dtype), quats_l=q_l.to(dtype), quats_r=q_r.to(dtype),
-                   time_range=(scale * t0 + shift, scale * t1 + shift))
+                   time_range=(scale * t0 + shift, scale * t1 + shift),
+                   accelerations=None if model.accelerations is None else model.accelerations / scale ** 2)
 
 
 def model_on_training_time(model: Gaussians4D, axis: TimeAxis) -> Gaussians4D:

@@ -39,10 +39,10 @@ def sh_texture_size(count: int, texels: int, num_coeffs: int, max_size: int) -> 
 
 @dataclass
 class SplatBuffers:
-    """A model's splats on the GPU: the per-Gaussian attributes (``a_mean_t, a_motion, a_cov_a, a_cov_b``: 16
-    floats) and SH coefficients (an RGBA float texture) the pre-pass reads, the index buffer it reads them through
-    (the draw order), its output (one `SPLAT_BYTES` record per Gaussian, `SPLAT_FIELDS`) and the vertex arrays that
-    draw those records with each splat program."""
+    """A model's splats on the GPU: the per-Gaussian attributes (``a_mean_t, a_motion, a_accel, a_cov_a,
+    a_cov_b``: 20 floats) and SH coefficients (an RGBA float texture) the pre-pass reads, the index buffer it reads
+    them through (the draw order), its output (one `SPLAT_BYTES` record per Gaussian, `SPLAT_FIELDS`) and the
+    vertex arrays that draw those records with each splat program."""
 
     count: int
     attrs: object
@@ -58,11 +58,11 @@ class SplatBuffers:
     @classmethod
     def create(cls, ctx, attrs: np.ndarray, sh: np.ndarray, sh_size: tuple[int, int], pre_prog,
                splat_progs: dict) -> "SplatBuffers":
-        """Upload ``[N, 16]`` float32 `attrs` and the ``[W * H, 4]`` float32 `sh` texels of a `sh_size` (W, H)
+        """Upload ``[N, 20]`` float32 `attrs` and the ``[W * H, 4]`` float32 `sh` texels of a `sh_size` (W, H)
         texture, and make the vertex arrays of the pre-pass program and of each splat program."""
         n = len(attrs)
         cap = max(n, 1)
-        attr_buf = ctx.buffer(attrs.tobytes() if n else b"\0" * 64)
+        attr_buf = ctx.buffer(attrs.tobytes() if n else b"\0" * 80)
         sh_tex = ctx.texture(sh_size, 4, sh.tobytes(), dtype="f4")
         sh_tex.filter = (_NEAREST, _NEAREST)
         indices = ctx.buffer(reserve=4 * cap)
@@ -73,7 +73,8 @@ class SplatBuffers:
             fmt = " ".join("4f" if name in used else "16x" for name in SPLAT_FIELDS)
             fmt += "" if kind == "points" else "/i"  # a quad is one instance of a 4-vertex strip
             splat_vaos[kind] = ctx.vertex_array(prog, [(splats, fmt, *used)])
-        pre_vao = ctx.vertex_array(pre_prog, [(attr_buf, "4f 4f 4f 4f", "a_mean_t", "a_motion", "a_cov_a", "a_cov_b")],
+        pre_vao = ctx.vertex_array(pre_prog, [(attr_buf, "4f 4f 4f 4f 4f", "a_mean_t", "a_motion", "a_accel", "a_cov_a",
+                                               "a_cov_b")],
                                    index_buffer=indices, index_element_size=4)
         return cls(n, attr_buf, sh_tex, indices, splats, pre_vao, pre_prog, splat_vaos)
 

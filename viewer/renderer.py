@@ -137,7 +137,7 @@ class SplatRenderer:
 
     def _upload(self, arrays: splatlib.SplatArrays) -> None:
         n, texels = len(arrays), arrays.sh_texels
-        attrs = np.concatenate([arrays.mean_t, arrays.motion, arrays.cov], axis=1).astype(np.float32)
+        attrs = arrays.attributes()
         max_size = int(self.ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
         width, rows = sh_texture_size(n, texels, arrays.num_coeffs, max_size)
         sh = np.zeros((rows * width, 4), np.float32)

@@ -46,10 +46,11 @@ def in_rect(order: SortResult, rect: tuple[float, float, float, float]) -> np.nd
 
 
 def centres_at(splats: SplatArrays, t: float, indices: np.ndarray) -> np.ndarray:
-    """``[M, 3]`` centres at time `t` of Gaussians `indices` of `splats` (the conditional mean, moving linearly in t;
-    a keyframed slice has no motion and stays where it was sliced)."""
+    """``[M, 3]`` centres at time `t` of Gaussians `indices` of `splats` (the conditional mean, moving in t with its
+    velocity and acceleration; a keyframed slice has no motion and stays where it was sliced)."""
     m = splats.mean_t[indices]
-    return m[:, :3].astype(np.float64) + splats.motion[indices, :3] * (t - m[:, 3:4])
+    dt = t - m[:, 3:4].astype(np.float64)
+    return m[:, :3].astype(np.float64) + (splats.motion[indices, :3] + 0.5 * splats.accel[indices, :3] * dt) * dt
 
 
 def marker_segments(points: np.ndarray, camera: Camera, pixels: float = 4.0) -> np.ndarray:

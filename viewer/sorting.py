@@ -157,8 +157,8 @@ def _dilog(x):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, caps, lims, max_exp, alpha_min, max_alpha, near,
-               eps2d, out, boxes):
+def _depth_key(i, mean_t, motion, accel, cov, view, t, width, height, s2, caps, lims, max_exp, alpha_min, max_alpha,
+               near, eps2d, out, boxes):
     """out[i] = -depth of Gaussian i at t (+inf when culled, see module doc); boxes[i] = (u, v, half-width,
     half-height, quad area, optical mass): the pixel box holding every pixel it can give alpha >= alpha_min within
     the `caps` (largest radius in std-devs, in pixels along the major axis), the area of the quad along its axes
@@ -174,9 +174,9 @@ def _depth_key(i, mean_t, motion, cov, view, t, width, height, s2, caps, lims, m
     o = cov[i, 6] * math.exp(-e)
     if not o >= alpha_min:
         return
-    px = mean_t[i, 0] + motion[i, 0] * dt
-    py = mean_t[i, 1] + motion[i, 1] * dt
-    pz = mean_t[i, 2] + motion[i, 2] * dt
+    px = mean_t[i, 0] + (motion[i, 0] + 0.5 * accel[i, 0] * dt) * dt
+    py = mean_t[i, 1] + (motion[i, 1] + 0.5 * accel[i, 1] * dt) * dt
+    pz = mean_t[i, 2] + (motion[i, 2] + 0.5 * accel[i, 2] * dt) * dt
     x = view[0] * px + view[1] * py + view[2] * pz + view[3]
     y = view[4] * px + view[5] * py + view[6] * pz + view[7]
     z = view[8] * px + view[9] * py + view[10] * pz + view[11]
@@ -239,23 +239,23 @@ def _frustum_limits(view, width, height, clamp):
 # over all cores, for a caller that waits for the order with nothing else running (`SplatRenderer.sort`). Two
 # functions rather than two builds of one: numba's cache keys a build by its function, not by its flags.
 @numba.njit(cache=True, nogil=True)
-def _depth_keys(mean_t, motion, cov, view, t, width, height, scale, caps, max_exp, alpha_min, max_alpha, near,
+def _depth_keys(mean_t, motion, accel, cov, view, t, width, height, scale, caps, max_exp, alpha_min, max_alpha, near,
                 eps2d, clamp, out, boxes):
     """`_depth_key` for every Gaussian."""
     lims = _frustum_limits(view, width, height, clamp)
     for i in range(mean_t.shape[0]):
-        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, caps, lims, max_exp, alpha_min,
-                   max_alpha, near, eps2d, out, boxes)
+        _depth_key(i, mean_t, motion, accel, cov, view, t, width, height, scale * scale, caps, lims, max_exp,
+                   alpha_min, max_alpha, near, eps2d, out, boxes)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def _depth_keys_parallel(mean_t, motion, cov, view, t, width, height, scale, caps, max_exp, alpha_min, max_alpha,
+def _depth_keys_parallel(mean_t, motion, accel, cov, view, t, width, height, scale, caps, max_exp, alpha_min, max_alpha,
                          near, eps2d, clamp, out, boxes):
     """`_depth_keys` on all cores (the same result)."""
     lims = _frustum_limits(view, width, height, clamp)
     for i in numba.prange(mean_t.shape[0]):
-        _depth_key(i, mean_t, motion, cov, view, t, width, height, scale * scale, caps, lims, max_exp, alpha_min,
-                   max_alpha, near, eps2d, out, boxes)
+        _depth_key(i, mean_t, motion, accel, cov, view, t, width, height, scale * scale, caps, lims, max_exp,
+                   alpha_min, max_alpha, near, eps2d, out, boxes)
 
 
 def depth_order(splats: SplatArrays, camera: Camera, t: float, footprint: Footprint = Footprint(),
@@ -268,9 +268,9 @@ def depth_order(splats: SplatArrays, camera: Camera, t: float, footprint: Footpr
     boxes = np.empty((n, 6), np.float32)
     if n:
         kernel = _depth_keys_parallel if parallel else _depth_keys
-        kernel(splats.mean_t, splats.motion, splats.cov, _view_params(camera), float(t), float(camera.width),
-               float(camera.height), footprint.scale, footprint_caps(footprint, camera.height), _MAX_EXPONENT,
-               ALPHA_THRESHOLD, MAX_ALPHA, footprint.near_plane, EPS2D, FRUSTUM_CLAMP, neg, boxes)
+        kernel(splats.mean_t, splats.motion, splats.accel, splats.cov, _view_params(camera), float(t),
+               float(camera.width), float(camera.height), footprint.scale, footprint_caps(footprint, camera.height),
+               _MAX_EXPONENT, ALPHA_THRESHOLD, MAX_ALPHA, footprint.near_plane, EPS2D, FRUSTUM_CLAMP, neg, boxes)
     return _finish(neg, boxes, SortKey.of(camera, t, footprint), start)
 
 

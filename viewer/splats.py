@@ -2,14 +2,17 @@
 
 A native 4D model is converted **once**: everything that does not depend on t (the conditional covariance, the
 velocity of the conditional mean, the temporal variance; `splatreel.covariance.condition_on_time`) is computed here
-on the CPU, and the vertex shader only evaluates the t-dependent part each frame (mean moving linearly in t,
-temporal opacity factor and its cull, SH with the cosine time terms). A keyframed model has no closed form in t,
-so its slice at t (`KeyframedGaussians.slice`) is converted instead, once per displayed time.
+on the CPU, and the vertex shader only evaluates the t-dependent part each frame (mean moving in t, linearly or with
+the model's accelerations, temporal opacity factor and its cull, SH with the cosine time terms). A keyframed model
+has no closed form in t, so its slice at t (`KeyframedGaussians.slice`) is converted instead, once per displayed
+time.
 
 Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coefficients)::
 
     mean_t  [N, 4]  mean xyz (at the temporal mean), temporal mean mu_t
-    motion  [N, 4]  velocity xyz (d mean / dt), 1 / (2 Sigma_tt)  (0: no temporal fade, e.g. a keyframed slice)
+    motion  [N, 4]  velocity xyz (d mean / dt at mu_t), 1 / (2 Sigma_tt)  (0: no temporal fade, e.g. a keyframed slice)
+    accel   [N, 4]  acceleration xyz (`Gaussians4D.accelerations`; 0 for linear motion), 0: the mean at t is
+                    mean + v dt + accel dt^2 / 2, dt = t - mu_t
     cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), speed |d mean / dt| (world
                     units per unit of model time; shown by the "speed" render mode, kept apart from `motion`
                     so that a keyframed slice's speed does not move it)
@@ -37,7 +40,7 @@ class SplatArrays:
     """GPU-ready per-Gaussian arrays of one model (see module doc for the layout).
 
     Attributes:
-        mean_t, motion: ``[N, 4]`` float32.
+        mean_t, motion, accel: ``[N, 4]`` float32.
         cov: ``[N, 8]`` float32.
         sh: ``[N, S]`` float32, S a multiple of 4.
         sh_degree: spatial SH degree 0..3.
@@ -50,6 +53,7 @@ class SplatArrays:
 
     mean_t: np.ndarray
     motion: np.ndarray
+    accel: np.ndarray
     cov: np.ndarray
     sh: np.ndarray
     sh_degree: int
@@ -80,13 +84,17 @@ class SplatArrays:
         return self.cov[:, 7]
 
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.mean_t, self.motion, self.cov, self.sh))
+        return sum(a.nbytes for a in (self.mean_t, self.motion, self.accel, self.cov, self.sh))
 
     def select(self, mask: np.ndarray) -> "SplatArrays":
         """The arrays of the Gaussians where `mask` (``[N]`` bool or indices) holds: the same as converting
         ``model.select(mask)``, without converting again (a gather, ~10x faster)."""
-        return replace(self, mean_t=self.mean_t[mask], motion=self.motion[mask], cov=self.cov[mask],
-                       sh=self.sh[mask])
+        return replace(self, mean_t=self.mean_t[mask], motion=self.motion[mask], accel=self.accel[mask],
+                       cov=self.cov[mask], sh=self.sh[mask])
+
+    def attributes(self) -> np.ndarray:
+        """``[N, 20]`` float32: the per-instance attributes the pre-pass reads (mean_t, motion, accel, cov)."""
+        return np.concatenate([self.mean_t, self.motion, self.accel, self.cov], axis=1).astype(np.float32)
 
 
 def _np32(x: torch.Tensor) -> np.ndarray:
@@ -134,10 +142,13 @@ def from_gaussians4d(model: Gaussians4D) -> SplatArrays:
         motion = np.empty((n, 4), np.float32)
         motion[:, :3] = _np32(velocity)
         motion[:, 3] = _np32(0.5 / var_t)
-        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(cov3, m.opacities, velocity),
+        accel = np.zeros((n, 4), np.float32)
+        if m.accelerations is not None:
+            accel[:, :3] = _np32(m.accelerations)
+        out = SplatArrays(mean_t=mean_t, motion=motion, accel=accel, cov=_pack_cov(cov3, m.opacities, velocity),
                           sh=_pack_sh(m.sh_coeffs), sh_degree=m.sh_degree, sh_degree_t=m.sh_degree_t,
                           duration=m.duration, time_range=m.time_range)
-    _check_finite("Gaussians4D", out.mean_t, out.motion, out.cov, out.sh)
+    _check_finite("Gaussians4D", out.mean_t, out.motion, out.accel, out.cov, out.sh)
     return out
 
 
@@ -151,7 +162,8 @@ def from_gaussians3d(g: Gaussians3D, time: float, time_range: tuple[float, float
         mean_t[:, 3] = time
         motion = np.zeros((n, 4), np.float32)
         opacity = torch.where(g.visible.to(g.opacities.device), g.opacities, torch.zeros_like(g.opacities))
-        out = SplatArrays(mean_t=mean_t, motion=motion, cov=_pack_cov(g.covariances.double(), opacity, g.velocities),
+        out = SplatArrays(mean_t=mean_t, motion=motion, accel=np.zeros((n, 4), np.float32),
+                          cov=_pack_cov(g.covariances.double(), opacity, g.velocities),
                           sh=_pack_sh(g.sh), sh_degree=g.sh_degree, sh_degree_t=0,
                           duration=float(time_range[1] - time_range[0]) or 1.0, time_range=tuple(time_range),
                           time=float(time))

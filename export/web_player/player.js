@@ -2,9 +2,10 @@
 //
 // The model is evaluated at time t in the vertex shader with the desktop renderer's formulas
 // (splatreel shaders/splat_preprocess.glsl and splat_draw.glsl):
-//   * native 4D Gaussians (Yang et al., ICLR 2024): mean mu_x + v (t - mu_t), constant conditional covariance
-//     (stored as scales + rotation), opacity sigmoid(o) exp(-(t - mu_t)^2 / (2 Sigma_tt)), culled at or below
-//     TEMPORAL_CULL; colour = SH with cosine time terms cos(2 pi n (mu_t - t) / T), + 0.5, clamped at 0;
+//   * native 4D Gaussians (Yang et al., ICLR 2024): mean mu_x + v (t - mu_t) + a (t - mu_t)^2 / 2 (a: the model's
+//     accelerations, Spacetime Gaussians' quadratic motion, Li et al. CVPR 2024; 0 without), constant conditional
+//     covariance (stored as scales + rotation), opacity sigmoid(o) exp(-(t - mu_t)^2 / (2 Sigma_tt)), culled at or
+//     below TEMPORAL_CULL; colour = SH with cosine time terms cos(2 pi n (mu_t - t) / T), + 0.5, clamped at 0;
 //   * keyframed models: lerp of means, scales, opacities and SH, slerp of rotations between the keys around t;
 //   * EWA splatting (Zwicker et al. 2001) as in Kerbl et al., "3D Gaussian Splatting" (2023): Jacobian at the
 //     clamped x/z, y/z, + EPS2D px^2, cut where alpha < ALPHA_THRESHOLD, alpha clamped at MAX_ALPHA.
@@ -124,10 +125,12 @@
           y = (1 - w) * model.pos[a + 1] + w * model.pos[b + 1];
           z = (1 - w) * model.pos[a + 2] + w * model.pos[b + 2];
         } else {
-          const q = 9 * i, p = model.pos, dt = t - p[q + 3];
+          const q = 12 * i, p = model.pos, dt = t - p[q + 3];
           const marginal = Math.exp(-dt * dt * p[q + 7]);
           if (!(marginal > c.TEMPORAL_CULL) || !(p[q + 8] * marginal >= c.ALPHA_THRESHOLD)) continue;
-          x = p[q] + p[q + 4] * dt; y = p[q + 1] + p[q + 5] * dt; z = p[q + 2] + p[q + 6] * dt;
+          x = p[q] + (p[q + 4] + 0.5 * p[q + 9] * dt) * dt;
+          y = p[q + 1] + (p[q + 5] + 0.5 * p[q + 10] * dt) * dt;
+          z = p[q + 2] + (p[q + 6] + 0.5 * p[q + 11] * dt) * dt;
         }
         const d = rot[0] * x + rot[1] * y + rot[2] * z + tz;
         if (!(d > c.NEAR_PLANE)) continue;
@@ -185,11 +188,13 @@
     if (!gl) throw new Error("this browser has no WebGL2");
     const keyed = H.kind === "keyframed";
     const C = H.constants;
+    const texels = H.geom_texels || 4;  // geometry texels per Gaussian (and key): 5 with accelerations
     const defines = { SH_DEGREE: H.sh_degree, SH_DEGREE_T: H.sh_degree_t, SH_TEXELS: H.sh_texels,
-                      GEOM_W: H.arrays.geom.size[0], SH_W: H.arrays.sh.size[0] };
+                      GEOM_W: H.arrays.geom.size[0], SH_W: H.arrays.sh.size[0], GEOM_TEXELS: texels };
     // GLSL float literals (toPrecision always writes a decimal point here); TILE_SIZE stays an int
     for (const [k, v] of Object.entries(C)) defines[k] = k === "TILE_SIZE" ? Math.round(v) : v.toPrecision(17);
     if (keyed) defines.KEYFRAMED = 1;
+    else if (texels >= 5) defines.ACCELERATED = 1;
     if (H.arrays.sh.type === "u8") defines.SH_U8 = 1;
     const prog = compile(gl, defines);
     gl.useProgram(prog);
@@ -205,24 +210,25 @@
       gl.uniform4fv(U("u_sh_step"), new Float32Array(H.arrays.sh.step));
     }
 
-    // what the sort worker needs, as float32: native [x y z mu_t vx vy vz 1/(2 Sigma_tt) opacity] per Gaussian;
-    // keyframed: every key's means and opacities
-    const g = arrays.geom;
+    // what the sort worker needs, as float32: native [x y z mu_t vx vy vz 1/(2 Sigma_tt) opacity ax ay az] per
+    // Gaussian (a = 0 without accelerations); keyframed: every key's means and opacities
+    const g = arrays.geom, stride = 4 * texels;
     const value = H.arrays.geom.type === "f16" ? (k) => halfToFloat(g[k]) : (k) => g[k];
     const rows = H.count * H.keys;
     let sortModel;
     if (keyed) {
       const pos = new Float32Array(3 * rows), opacity = new Float32Array(rows);
       for (let r = 0; r < rows; r++) {
-        for (let k = 0; k < 3; k++) pos[3 * r + k] = value(16 * r + k);
-        opacity[r] = value(16 * r + 3);
+        for (let k = 0; k < 3; k++) pos[3 * r + k] = value(stride * r + k);
+        opacity[r] = value(stride * r + 3);
       }
       sortModel = { kind: H.kind, count: H.count, constants: C, pos, opacity };
     } else {
-      const pos = new Float32Array(9 * rows);
+      const pos = new Float32Array(12 * rows);
       for (let r = 0; r < rows; r++) {
-        for (let k = 0; k < 8; k++) pos[9 * r + k] = value(16 * r + k);
-        pos[9 * r + 8] = value(16 * r + 15);
+        for (let k = 0; k < 8; k++) pos[12 * r + k] = value(stride * r + k);
+        pos[12 * r + 8] = value(stride * r + 15);
+        if (texels >= 5) for (let k = 0; k < 3; k++) pos[12 * r + 9 + k] = value(stride * r + 16 + k);
       }
       sortModel = { kind: H.kind, count: H.count, constants: C, pos };
     }

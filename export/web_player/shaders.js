@@ -30,8 +30,8 @@ const float SH_C1 = 0.4886025119029199;
 const float TWO_PI = 6.283185307179586;
 #define SH_BASES ((SH_DEGREE + 1) * (SH_DEGREE + 1))
 
-vec4 geom(int row, int k) {
-  int i = row * 4 + k;
+vec4 geom(int row, int k) {  // texel k of a row of GEOM_TEXELS (4, or 5 with accelerations)
+  int i = row * GEOM_TEXELS + k;
   return texelFetch(u_geom, ivec2(i % GEOM_W, i / GEOM_W), 0);
 }
 
@@ -135,7 +135,11 @@ void main() {
   float marginal = exp(-dt * dt * motion.w);
   if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
   float opacity = shape.w * marginal;
+#ifdef ACCELERATED
+  vec3 mean = m.xyz + (motion.xyz + 0.5 * geom(i, 4).xyz * dt) * dt;  // splatreel.model: mu + v dt + a dt^2 / 2
+#else
   vec3 mean = m.xyz + motion.xyz * dt;
+#endif
   vec4 quat = geom(i, 2);
   vec3 scale = shape.xyz;
   float tau = -dt;

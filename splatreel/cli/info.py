@@ -66,8 +66,9 @@ def _with_file_facts(path, facts: dict) -> dict:
            "background": list(facts["background"]), "size_bytes": size, "dtype": facts["dtype"],
            "format_version": facts["format_version"], "provenance": facts["provenance"],
            "training": facts["training"]}
-    if "num_frames" in facts:
-        out["num_frames"] = facts["num_frames"]
+    for key in ("num_frames", "motion"):
+        if key in facts:
+            out[key] = facts[key]
     out["training_views"] = len(views)
     out["training_cameras"] = len(views_to_json(views)["cameras"])  # each distinct camera once
     out.update({k: facts[k] for k in ("std_dev", "opacity", "large")})
@@ -110,6 +111,9 @@ def run(args: argparse.Namespace) -> int:
                                         "(view/render --cameras this file)"))
     if info["rotation_convention"]:
         rows.append(("4D rotation", info["rotation_convention"]))
+    if info.get("motion"):  # checkpoints from before accelerations have no entry (linear)
+        rows.append(("motion", {"quadratic": "quadratic (each Gaussian has an acceleration)"}.get(info["motion"],
+                                                                                               info["motion"])))
     if "num_frames" in info:
         rows.append(("keyframes", str(info["num_frames"])))
     rows += [("background", fmt(info["background"])), ("dtype", info["dtype"]),

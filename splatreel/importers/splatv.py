@@ -13,16 +13,20 @@ bytes       type       field
 12-19       f16 x4     rotation (w, x, y, z)
 20-27       f16 x4     scale (linear std-devs), 0
 28-31       u8 x4      colour R, G, B (sRGB-encoded DC), opacity A
-32-51       f16 x10    motion: velocity, acceleration, jerk (x, y, z each per unit of the player's time), 0
+32-51       f16 x10    motion: the coefficients m1, m2, m3 (x, y, z each) of dtau, dtau^2, dtau^3, then 0
 52-59       f16 x4     rotation velocity omega (w, x, y, z)
 60-63       f16 x2     temporal centre c and width s (opacity times exp(-((tau - c) / s)^2)), tau in [0, 1]
 ==========  =========  =====================================================================================
 
-A native 4D Gaussian maps onto a record exactly but for its colour's view and time dependence (only the DC is kept;
-see `splatreel.export.splatv`). Read back, a record becomes a native 4D Gaussian over the time range given by
-``--time-range`` (default [0, 1]: the format stores no duration): p0, a linear velocity, the record's covariance as
-the conditional one, and a temporal variance s^2 / 2 (in the player's time); acceleration, jerk and rotation
-velocity have no native counterpart and are dropped with a warning when non-zero.
+The player draws a splat at its time tau in [0, 1] at p0 + m1 dtau + m2 dtau^2 + m3 dtau^3, dtau = tau - c, with
+the rotation (w, x, y, z) + omega dtau (``hybrid.js``; Spacetime Gaussians' polynomial motion, Li et al. CVPR 2024).
+
+A native 4D Gaussian, with or without accelerations, maps onto a record exactly but for its colour's view and time
+dependence (only the DC is kept; see `splatreel.export.splatv`). Read back, a record becomes a native 4D Gaussian
+over the time range (t0, t1) given by ``--time-range`` (default [0, 1]: the format stores no duration), T = t1 - t0:
+p0, the velocity m1 / T, the record's covariance as the conditional one, a temporal variance s^2 / 2 (in the
+player's time), and the acceleration a = 2 m2 / T^2 (`Gaussians4D.accelerations`; none when every m2 is 0). Jerk m3
+and rotation velocity omega have no counterpart and are dropped with a warning when non-zero.
 """
 
 from __future__ import annotations
@@ -93,7 +97,8 @@ def parse_splatv(data: bytes, name: str = "splatv") -> tuple[np.ndarray, list]:
 
 
 def read_splatv(path: Path, **options):
-    """A ``.splatv`` file as a native 4D `Checkpoint` over the time range [0, 1] (see module doc)."""
+    """A ``.splatv`` file as a native 4D `Checkpoint` (with accelerations where the file has any) over the time
+    range [0, 1] or ``time_range`` (see module doc)."""
     import torch
 
     from ..checkpoint import Checkpoint
@@ -112,11 +117,13 @@ def read_splatv(path: Path, **options):
     if not len(records):
         raise CheckpointError(f"{path}: the .splatv holds no Gaussians")
     f32 = lambda a: torch.as_tensor(np.asarray(a, np.float32))  # noqa: E731
-    extra = np.abs(records["motion"][:, 3:9].astype(np.float32)).max(initial=0.0)
+    jerk = np.abs(records["motion"][:, 6:9].astype(np.float32)).max(initial=0.0)
     spin = np.abs(records["omega"].astype(np.float32)).max(initial=0.0)
-    if extra > 0 or spin > 0:
-        record.warn(f"acceleration/jerk (up to {extra:.3g}) and rotation velocity (up to {spin:.3g}) have no native "
-                    "4D counterpart and were dropped: motion is linear, rotation constant")
+    if jerk > 0 or spin > 0:
+        record.warn(f"jerk (up to {jerk:.3g}) and rotation velocity (up to {spin:.3g}) have no 4D counterpart and "
+                    "were dropped: motion is at most quadratic, rotation constant")
+    quadratic = records["motion"][:, 3:6].astype(np.float64)  # the coefficient of dtau^2 = a T^2 / 2
+    accelerations = f32(2.0 * quadratic / (span * span)) if quadratic.any() else None
     c = float(t0) + span * records["trbf"][:, 0].astype(np.float64)  # the player's time tau -> model time
     s = span * np.maximum(records["trbf"][:, 1].astype(np.float64), MIN_WIDTH)
     quats = f32(records["rotation"])
@@ -132,7 +139,7 @@ def read_splatv(path: Path, **options):
         log_t_scales=scale_t.clamp_min(1e-7).log().float(), quats_l=q_l.float(), quats_r=q_r.float(),
         opacity_logits=f32(np.log(opacity / (1 - opacity))), sh_dc=f32((rgba[:, None, :3] - 0.5) / SH_C0),
         sh_rest=torch.zeros(len(records), 0, 3), sh_degree=0, sh_degree_t=0, time_range=(float(t0), float(t1)),
-        rotation_convention="current")
+        rotation_convention="current", accelerations=accelerations)
     record.facts.update(count=len(records), cameras=len(cameras))
     record.finish()
     return Checkpoint(model=model, background=tuple(float(x) for x in background), provenance=record.provenance())

@@ -50,6 +50,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert "time units long" in text and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
     assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
+    assert cfg.motion == "quadratic" and "quadratic motion" in text and "--motion" in text
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
 
 
@@ -67,6 +68,7 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert cfg.clip_duration == 5.0 and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
     assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text
+    assert cfg.motion == "linear" and "--motion" not in text  # not measured there: one view can fake a curve
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
     single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
@@ -240,12 +242,14 @@ def test_resume_with_densification_equals_uninterrupted(matrix, tmp_path):
     Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
     a, b = load_checkpoint(tmp_path / "a.safetensors").model, load_checkpoint(tmp_path / "b.safetensors").model
     assert len(a.means) > 1000  # it did densify
+    assert a.accelerations is not None and a.accelerations.abs().max() > 0  # the recipe's quadratic motion
     for k, v in a.tensors().items():
         torch.testing.assert_close(v, b.tensors()[k], rtol=0, atol=0)
 
 
 def test_named_presets_are_kept():
     assert preset("efficient4d").preset == "efficient4d" and preset("full").densify.enabled
+    assert preset("efficient4d").motion == preset("full").motion == "linear"
 
 
 def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tmp_path, capsys):
@@ -256,3 +260,13 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     assert "--flow-motion-at and --inbetween-share ignored: no camera films two consecutive frames" in said
     assert "preset auto, 2 iterations" in said and "10 minutes (" in said and "--iters 2 given instead)" in said
     assert out.exists()
+
+
+def test_motion_option_overrides_the_recipe(matrix, tmp_path, capsys):
+    for given, expect in ((None, "quadratic"), ("linear", "linear")):
+        out = tmp_path / f"{expect}.safetensors"
+        assert main(["train", str(matrix), "--out", str(out), "--iters", "2", "--num-gaussians", "300", "--quiet",
+                     *(["--motion", given] if given else [])]) == 0
+        said = capsys.readouterr().out
+        assert ("--motion linear given)" in said) == (given is not None)
+        assert (load_checkpoint(out).model.accelerations is None) == (expect == "linear")

@@ -140,6 +140,11 @@ class TrainConfig:
     #: Share of the images a step draws that are frames interpolated by optical flow half-way between a camera's
     #: consecutive frames (`train.flow`); 0: none. Needs cameras that film consecutive frames.
     inbetween_share: float = 0.0
+    #: How the Gaussians' means move: 'linear' (native 4DGS) or 'quadratic' (each Gaussian also learns an
+    #: acceleration, `Gaussians4D.accelerations`, at `lr_accelerations` times the scene extent, per unit of the
+    #: trainer's time axis squared).
+    motion: str = "linear"
+    lr_accelerations: float = 1.8e-3
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

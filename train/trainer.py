@@ -38,7 +38,14 @@ from .losses import dssim, l1, psnr
 from .motion import flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
-PARAM_NAMES = Gaussians4D.TENSORS
+MOTIONS = ("linear", "quadratic")
+
+
+def param_names(cfg: TrainConfig) -> tuple[str, ...]:
+    """The model tensors the trainer optimises: the native ones, and the accelerations with quadratic motion."""
+    if cfg.motion not in MOTIONS:
+        raise SplatreelError(f"unknown motion {cfg.motion!r} (expected {' or '.join(MOTIONS)})")
+    return Gaussians4D.TENSORS + (("accelerations",) if cfg.motion == "quadratic" else ())
 
 
 def state_path(out: Path) -> Path:
@@ -192,14 +199,17 @@ class Trainer:
 
     def _make_optimizer(self, raw: dict[str, torch.Tensor]) -> None:
         cfg = self.cfg
-        self.params = {k: torch.nn.Parameter(raw[k].to(self.device, torch.float32).contiguous())
-                       for k in PARAM_NAMES}
+        names = param_names(cfg)
+        if "accelerations" in names and raw.get("accelerations") is None:  # a fresh run, or a linear checkpoint
+            raw = {**raw, "accelerations": torch.zeros_like(raw["means"])}
+        self.params = {k: torch.nn.Parameter(raw[k].to(self.device, torch.float32).contiguous()) for k in names}
         lrs = {"t_means": cfg.lr_t_means * self.extent * self.axis.scale,
                "log_scales": cfg.lr_scales, "log_t_scales": cfg.lr_scales, "quats_l": cfg.lr_quats,
                "quats_r": cfg.lr_quats, "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc,
-               "sh_rest": cfg.lr_sh_rest, **scheduled_lrs(0, cfg, self.extent)}
+               "sh_rest": cfg.lr_sh_rest, "accelerations": cfg.lr_accelerations * self.extent,
+               **scheduled_lrs(0, cfg, self.extent)}
         self.optimizer = torch.optim.Adam([{"params": [self.params[k]], "lr": lrs[k], "name": k}
-                                           for k in PARAM_NAMES], lr=0.0, eps=1e-15)
+                                           for k in names], lr=0.0, eps=1e-15)
 
     def _resume(self) -> None:
         sp = state_path(self.out)
@@ -339,8 +349,9 @@ class Trainer:
             regularisers.backward()
             loss_sum += float(regularisers.detach()) * cfg.batch_size
         if static:  # static-to-dynamic: time frozen, q_r tied to q_l (static under the 'current' convention)
-            for k in ("t_means", "log_t_scales", "quats_r"):
-                self.params[k].grad = None
+            for k in ("t_means", "log_t_scales", "quats_r", "accelerations"):
+                if k in self.params:
+                    self.params[k].grad = None
         self._maybe_densify()
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)

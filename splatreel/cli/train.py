@@ -77,6 +77,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="share of the images a step draws that are frames optical flow interpolates half-way "
                         "between a camera's consecutive frames (default: the recipe's, 0.25 for an image matrix; "
                         "0 = none; needs cameras that film consecutive frames, else it is ignored with a note)")
+    p.add_argument("--motion", choices=["linear", "quadratic"],
+                   help="how the Gaussians move: linear (native 4DGS) or quadratic (each also learns an acceleration, "
+                        "so it can follow a curved path; exported where the format holds it) (default: the recipe's, "
+                        "quadratic for an image matrix, else linear; the named presets linear; a resumed run keeps its "
+                        "own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -126,7 +131,7 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init,
             "static_share": args.static_share, "clip_duration": None if resumed else args.clip_duration,
             "flow_motion_at": args.flow_motion_at,
-            "inbetween_share": args.inbetween_share}
+            "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:

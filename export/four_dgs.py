@@ -47,7 +47,8 @@ def four_dgs_bytes(model, duration_sec: float | None = None, profile: str = "fin
     if dropped > 0:
         warnings.warn(f".4dgs motion is linear: the model's accelerations are dropped (velocities kept at each "
                       f"Gaussian's temporal mean), which moves a Gaussian by up to {dropped:.3g} model units within "
-                      "2 sigma_t of its temporal mean", stacklevel=2)
+                      "2 sigma_t of its temporal mean; export splatv or web to keep them, or train with --motion "
+                      "linear for a model .4dgs holds exactly", stacklevel=2)
     n = len(model)
     sh = sh_to_bytes(g.sh_rest) if model.sh_degree > 0 else None
     gaussians = fourdgs.GaussianSet(

@@ -152,9 +152,12 @@ void main() {
     // the value modes composite their value as a grey colour, so the splat shader has one path for all modes
     // the time window where the marginal exceeds the cull; capped at the model's span, so that an unfading
     // Gaussian (or a keyframed slice) reads as "throughout" instead of flooding the pixel's average
+    // |d mean / dt| at t: the stored speed (a keyframed slice's, kept apart from its zero motion), or with
+    // accelerations |v + a dt|
+    float speed = a_accel.xyz == vec3(0.0) ? a_cov_b.w : length(a_motion.xyz + a_accel.xyz * dt);
     float span = a_motion.w > 0.0 ? min(2.0 * sqrt(-log(TEMPORAL_CULL) / a_motion.w), u_duration) : u_duration;
     vec3 rgb = u_value == 0 ? sh_color(mean - u_campos, -dt)
-                            : vec3(u_value == 1 ? p.z : u_value == 2 ? a_cov_b.w : u_value == 3 ? span : factor);
+                            : vec3(u_value == 1 ? p.z : u_value == 2 ? speed : u_value == 3 ? span : factor);
     o_color = vec4(rgb, opacity);
     o_rect = vec4(floor(lo / float(TILE_SIZE)), ceil(hi / float(TILE_SIZE))) * float(TILE_SIZE);
 }

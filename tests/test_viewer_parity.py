@@ -109,13 +109,19 @@ def test_gl_matches_rasterizer_for_a_keyframed_model():
 def test_speed_mode_accumulates_each_gaussians_speed_like_the_rasterizer_composites_colour():
     """The speed mode composites |d mean / dt| in place of colour: the GL accumulation equals the rasterizer's image
     of the same slice with every Gaussian's colour set to its speed (`Gaussians3D.velocities`), for a native model
-    (conditional-mean velocity) and a keyframed one (its key segment's velocity)."""
+    (conditional-mean velocity, with the accelerations' term at t when it has them) and a keyframed one (its key
+    segment's velocity)."""
+    from dataclasses import replace
+
     from splatreel.viewer.splats import to_arrays, typical_speed
 
     native = synthetic_model(3000, seed=5, sh_degree=1, radius=0.4, scale=0.02, speed=0.5)
     keyed = keyframed(native, (0.0, 0.5, 1.0))
+    g = torch.Generator().manual_seed(3)
+    accelerated = replace(native, accelerations=4.0 * torch.randn(len(native), 3, generator=g,
+                                                                  dtype=native.means.dtype))
     camera = orbit(20, 60, 1.6, fov_deg=45, width=96, height=96)
-    for model, t in ((native, 0.3), (keyed, 0.7)):
+    for model, t in ((native, 0.3), (keyed, 0.7), (accelerated, 0.8)):
         speed = torch.linalg.vector_norm(model.slice(t).velocities, dim=-1)
         assert float(speed.max()) > 0.1 and float(speed.min()) < float(speed.max()) / 2
         acc, stats, ref = value_images(model, camera, t, "speed", speed)

@@ -13,9 +13,10 @@ Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coeffic
     motion  [N, 4]  velocity xyz (d mean / dt at mu_t), 1 / (2 Sigma_tt)  (0: no temporal fade, e.g. a keyframed slice)
     accel   [N, 4]  acceleration xyz (`Gaussians4D.accelerations`; 0 for linear motion), 0: the mean at t is
                     mean + v dt + accel dt^2 / 2, dt = t - mu_t
-    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), speed |d mean / dt| (world
-                    units per unit of model time; shown by the "speed" render mode, kept apart from `motion`
-                    so that a keyframed slice's speed does not move it)
+    cov     [N, 8]  conditional covariance c00 c01 c02 c11 c12 c22, opacity (activated), speed |d mean / dt| at
+                    mu_t (world units per unit of model time; shown by the "speed" render mode, with the
+                    accelerations' term at t when there are any; kept apart from `motion` so that a keyframed slice's
+                    speed does not move it)
     sh      [N, S]  the M x 3 colour coefficients flattened coefficient-major (r g b of coefficient 0, then 1, ...)
                     and zero-padded to S = 4 * ceil(3 M / 4) floats (whole RGBA texels)
 """

@@ -22,6 +22,9 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+#: How the Gaussians' means can move (`TrainConfig.motion`).
+MOTIONS = ("linear", "quadratic")
+
 
 @dataclass
 class DensifyConfig:

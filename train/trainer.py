@@ -27,7 +27,7 @@ from splatreel.rasterize import rasterize
 
 from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
-from .config import TrainConfig
+from .config import MOTIONS, TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, target_bytes, view_target
@@ -37,9 +37,6 @@ from .initialize import (carved_init, default_init_radius, frustum_init, initial
 from .losses import dssim, l1, psnr
 from .motion import flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
-
-MOTIONS = ("linear", "quadratic")
-
 
 def param_names(cfg: TrainConfig) -> tuple[str, ...]:
     """The model tensors the trainer optimises: the native ones, and the accelerations with quadratic motion."""

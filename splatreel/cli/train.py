@@ -25,7 +25,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
-    from splatreel.train.config import PRESETS
+    from splatreel.train.config import MOTIONS, PRESETS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -77,7 +77,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="share of the images a step draws that are frames optical flow interpolates half-way "
                         "between a camera's consecutive frames (default: the recipe's, 0.25 for an image matrix; "
                         "0 = none; needs cameras that film consecutive frames, else it is ignored with a note)")
-    p.add_argument("--motion", choices=["linear", "quadratic"],
+    p.add_argument("--motion", choices=MOTIONS,
                    help="how the Gaussians move: linear (native 4DGS) or quadratic (each also learns an acceleration, "
                         "so it can follow a curved path; exported where the format holds it) (default: the recipe's, "
                         "quadratic for an image matrix, else linear; the named presets linear; a resumed run keeps its "

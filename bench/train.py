@@ -2,7 +2,7 @@
 score the held-out views beside two trivial baselines and the sample's exact model.
 
     python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,floor] [--minutes M]
-                          [--iters N] [--profile-steps K]
+                          [--iters N] [--profile-steps K] [--device auto|cpu|cuda] [--datasets DIR]
 
 Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the whole run, set-up included), `iters`,
 `n_gaussians`, `test_psnr`, `test_ssim`, `test_psnr_on_black` (the same model and test views, both composited on
@@ -19,7 +19,10 @@ A model has to beat both by a wide margin.
 `step` is the breakdown of the work per training image (full resolution, the final model) into slicing,
 rasterizer forward, losses, backward, the regularisers and Adam, in milliseconds; a step renders `--batch-size`
 images, and what it does once (finding the live Gaussians, the regularisers, the Adam update) is shared out among
-them.
+them. On a CUDA device each phase is synchronised before it is timed.
+
+`--datasets DIR` keeps the generated datasets in DIR/NAME and reads them from there when present (the GL renderer
+that makes them is then not needed: a machine without a display driver can run datasets made elsewhere).
 """
 
 from __future__ import annotations
@@ -49,31 +52,40 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
     from splatreel.covariance import alive_at
 
     cfg, ds = trainer.cfg, trainer.ds
+    sync = torch.cuda.synchronize if trainer.device.type == "cuda" else (lambda: None)
     phases = dict.fromkeys(("slice", "raster forward", "losses", "backward", "regularisers", "adam"), 0.0)
     for r in range(repeats):
         view = ds.train[(r * 7) % len(ds.train)]
         target, mask = view_target(view, ds.background, trainer.device)
+        sync()
         t = time.perf_counter()
         model = trainer.model()
         with torch.no_grad():
             var_t = model.covariance_4d()[:, 3, 3]
+        sync()
         t_var = time.perf_counter() - t  # the trainer finds the live Gaussians once per step, not per image
         t = time.perf_counter() - t_var / cfg.batch_size
         g = model.slice(view.time, rows=alive_at(view.time, model.t_means.detach(), var_t))
+        sync()
         t1 = time.perf_counter()
         out = rasterize(g, view.camera, trainer.bg, sh_degree=cfg.sh_degree)
+        sync()
         t2 = time.perf_counter()
         loss = cfg.lambda_l1 * l1(out.rgb, target) + cfg.lambda_dssim * dssim(out.rgb, target)
         if mask is not None:
             loss = loss + cfg.lambda_mask * l1(out.alpha, mask)
+        sync()
         t3 = time.perf_counter()
         loss.backward()
+        sync()
         t4 = time.perf_counter()
         regularisers = trainer.regularisers(model, static=False)  # once per step, on every Gaussian
         if regularisers is not None:
             regularisers.backward()
+        sync()
         t5 = time.perf_counter()
         trainer.optimizer.step()  # after the model was saved and scored: these steps change nothing reported
+        sync()
         t6 = time.perf_counter()
         trainer.optimizer.zero_grad(set_to_none=True)
         for k, dt in zip(phases, (t1 - t, t2 - t1, t3 - t2, t4 - t3, (t5 - t4) / cfg.batch_size,
@@ -120,6 +132,10 @@ def main() -> None:
     ap.add_argument("--samples", default=None, help="comma-separated sample names (default: all)")
     ap.add_argument("--minutes", type=float, default=None, help="override the recipe's time budget")
     ap.add_argument("--iters", type=int, default=None, help="run this many iterations instead of a time budget")
+    ap.add_argument("--device", default=None, choices=["auto", "cpu", "cuda"],
+                    help="compute device (default: the recipe's, 'auto')")
+    ap.add_argument("--datasets", type=Path, metavar="DIR",
+                    help="keep the generated datasets in DIR/NAME and read them from there when present")
     ap.add_argument("--profile-steps", type=int, default=10, help="steps timed for the breakdown (0: skip)")
     args = ap.parse_args()
 
@@ -137,16 +153,20 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
+            data = (args.datasets or Path(tmp)) / name
             t = time.perf_counter()
-            write_dataset(name, Path(tmp) / name)
+            if not data.exists():
+                write_dataset(name, data)
             gen_s = time.perf_counter() - t
-            ds = load_dataset(Path(tmp) / name)
+            ds = load_dataset(data)
             traits = read_traits(ds)
             cfg, decisions = auto_recipe(traits)
             if args.iters:
                 cfg = dataclasses.replace(cfg.scaled(args.iters), minutes=None)
             elif args.minutes:
                 cfg = dataclasses.replace(cfg, minutes=args.minutes)
+            if args.device:
+                cfg = dataclasses.replace(cfg, device=args.device)
             t = time.perf_counter()
             tr = Trainer(ds, cfg, Path(tmp) / f"{name}.safetensors", progress=True)
             res = tr.run()
@@ -170,7 +190,7 @@ def main() -> None:
                          "decisions": [d.line() for d in decisions],
                          "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
-                         "generate_seconds": round(gen_s, 2),
+                         "generate_seconds": round(gen_s, 2), "device": str(tr.device),
                          "step": step_breakdown(tr, args.profile_steps) if args.profile_steps else None})
             print(rows[-1], flush=True)
     print(f"\n{'sample':<9}{'regime':<21}{'seconds':>8}{'iters':>7}{'gaussians':>11}{'test PSNR':>10}"
@@ -193,6 +213,7 @@ def main() -> None:
                   + f"{sum(r['step'].values()):>10.1f}")
     if args.json:
         meta = {"machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
+                "cuda": torch.cuda.get_device_name() if torch.cuda.is_available() else None,
                 "torch": torch.__version__}
         Path(args.json).write_text(json.dumps({"meta": meta, "results": rows}, indent=2) + "\n")
 

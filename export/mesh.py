@@ -283,7 +283,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--surface", choices=SURFACES, default=d.surface,
                    help=f"fused: depth and colour rendered from {FUSION_VIEWS} views around the model, fused into a "
                         "signed distance field (closer to what the renders show); density: the iso-surface of the "
-                        "Gaussians' density (about 3x faster; holds open sheets such as floors); auto: fused unless "
+                        "Gaussians' density (2-4x faster; holds open sheets such as floors); auto: fused unless "
                         f"it loses parts of the model (tried on the middle frame) (default {d.surface})")
     p.add_argument("--iso", type=positive_number, default=d.iso,
                    help=f"density level of the surface, with --surface density (default {d.iso})")

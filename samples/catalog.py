@@ -15,9 +15,10 @@ from .gaussians import DEFAULT_FRAMES, DEFAULT_GAUSSIANS, motion_model
 from .objects import Morph, SampleConfigError, SampleObject, Spinner, UnknownSampleError, Wave
 from .render import MeshRenderer
 from .texture import Texture
+from .walker import Walker
 
 #: Name -> object with default parameters.
-OBJECTS: dict[str, SampleObject] = {o.name: o for o in (Spinner(), Wave(), Morph(), Texture())}
+OBJECTS: dict[str, SampleObject] = {o.name: o for o in (Spinner(), Wave(), Morph(), Texture(), Walker())}
 #: Name -> one-line description (what ``splatreel sample --list`` prints).
 SAMPLES: dict[str, str] = {name: type(o).description for name, o in OBJECTS.items()}
 

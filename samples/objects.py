@@ -12,6 +12,8 @@ clamped: an object holds its first and last state.
   to blue.
 * ``texture``: a thick banner covered in fine, high-contrast texture (bars 2 to 6 px wide, a checker band and text,
   as per-vertex colours on a dense mesh) that ripples, bows and twists (`splatreel.samples.texture`).
+* ``walker``: an articulated figure walking in place while it turns, with thin swinging limbs and patterned clothes
+  (`splatreel.samples.walker`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Train the default recipe (``auto``, with its time budget) on each procedural sample at its default size and
 score the held-out views beside two trivial baselines and the sample's exact model.
 
-    python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,floor] [--minutes M]
+    python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,walker,floor] [--minutes M]
                           [--iters N] [--profile-steps K] [--device auto|cpu|cuda] [--datasets DIR]
 
 Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the whole run, set-up included), `iters`,

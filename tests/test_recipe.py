@@ -68,10 +68,11 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert cfg.clip_duration == 5.0 and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
     assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text
-    assert cfg.motion == "linear" and "--motion" not in text  # not measured there: one view can fake a curve
+    assert cfg.motion == "quadratic" and "quadratic motion" in text and "--motion" in text
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
     single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
+    assert single.motion == "linear" and "--motion" not in decisions_text(single_decisions)  # nothing moves
 
 
 def test_static_share_starts_gaussians_static(small_floor, tmp_path, capsys):

@@ -106,15 +106,14 @@ class Walker(SampleObject):
         """Each part's rows of the mesh's vertices. A part's first vertex is the pole at its local +z (a limb's
         lower end), its last the opposite pole."""
         out, start = {}, 0
-        for part in self.parts:
-            n = 2 + (part.rings - 1) * part.segments  # `sphere_topology`'s vertex count
-            out[part.name] = slice(start, start + n)
-            start += n
+        for part, (unit, _) in zip(self.parts, self._topology[0]):
+            out[part.name] = slice(start, start + len(unit))
+            start += len(unit)
         return out
 
     @cached_property
     def _topology(self) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, np.ndarray]:
-        """Per part (unit-sphere points ``(V_i, 3)``, (theta, phi)), then all faces and all colours."""
+        """Per part (unit-sphere points ``(V_i, 3)``, radii), then all faces and all colours (albedo)."""
         units, faces, colors, offset = [], [], [], 0
         for part in self.parts:
             theta, phi, f = sphere_topology(part.rings, part.segments)

@@ -1,6 +1,6 @@
 """The CUDA path against the CPU path: the same images and gradients, and the time of one training image on each.
 
-    python bench/cuda.py [--json OUT.json] [--model samples/spinner.safetensors] [--size 256] [--views 6]
+    python bench/cuda_path.py [--json OUT.json] [--model samples/spinner.safetensors] [--size 256] [--views 6]
 
 Needs a CUDA device (it says so in one line and exits 2 without one). For the model (default: the bundled sample,
 with its recorded training cameras, each at its own time), rendered at `--size`:
@@ -14,6 +14,9 @@ with its recorded training cameras, each at its own time), rendered at `--size`:
   synchronised), after a warm-up, and their ratio.
 * `--profile N`: the N torch operators (and kernels) that took the most time on the device over a few images, from
   `torch.profiler`, to see where a step's time goes there.
+
+(The file is not called ``cuda.py``: run as a script, its folder comes first on ``sys.path``, and torch's own
+``import cuda.bindings`` would find it.)
 
 Which compositor ran on the CUDA device is reported: gsplat's `rasterize_to_pixels` when gsplat is importable
 (``pip install splatreel[cuda]``), else the numba kernels on the host with the tensors copied there and back.
@@ -39,10 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _leaves(model, device):
     """The model on `device`, float32, every per-Gaussian tensor a leaf that records its gradient."""
     m = model.to(device=device, dtype=torch.float32)
-    for name in (*m.TENSORS, *m.OPTIONAL_TENSORS):
-        if getattr(m, name) is not None:
-            setattr(m, name, getattr(m, name).detach().clone().requires_grad_())
-    return m
+    return replace(m, **{k: v.detach().clone().requires_grad_() for k, v in m.tensors().items()})
 
 
 def _render(model, view, background, device):
@@ -68,10 +68,9 @@ def parity(model, views, background, cuda) -> dict:
             out = _render(m, view, background, device)
             ((out.rgb * weights.to(device)).sum() + out.alpha.sum()).backward()
             outs.append((out.rgb.detach().cpu(), out.alpha.detach().cpu(),
-                                 {k: getattr(m, k).grad.detach().cpu() for k in (*m.TENSORS, *m.OPTIONAL_TENSORS)
-                                  if getattr(m, k) is not None and getattr(m, k).grad is not None}))
+                         {k: v.grad.cpu() for k, v in m.tensors().items() if v.grad is not None}))
         (rgb_c, a_c, g_c), (rgb_g, a_g, g_g) = outs
-        mse = float(((rgb_c - rgb_g) ** 2).mean())
+        mse = float(((rgb_c - rgb_g) ** 2).mean())  # unclamped (`train.losses.psnr` clamps one side to [0, 1])
         per_view.append({"time": round(view.time, 4), "psnr": math.inf if mse == 0 else round(-10 * math.log10(mse), 2),
                          "alpha_max_diff": float((a_c - a_g).abs().max())})
         for k in g_c:
@@ -103,7 +102,7 @@ def profile_step(model, views, background, device, rows: int) -> str:
 
     m = _leaves(model, device)
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
-    for warm in (True, False):
+    for _ in range(2):  # the first pass warms up; the table is the second's
         with profile(activities=activities) as prof:
             for view in views:
                 out = _render(m, view, background, device)
@@ -127,15 +126,20 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from splatreel.checkpoint import load_checkpoint
+    from splatreel.errors import SplatreelError
     from splatreel.rasterize import uses_gsplat
 
     cuda = torch.device(args.device)
     if cuda.type == "cuda" and not torch.cuda.is_available():
-        print("bench/cuda.py: no CUDA device (torch.cuda.is_available() is False)", file=sys.stderr)
+        print("bench/cuda_path.py: no CUDA device (torch.cuda.is_available() is False)", file=sys.stderr)
         return 2
-    ckpt = load_checkpoint(args.model)
+    try:
+        ckpt = load_checkpoint(args.model)
+    except SplatreelError as exc:
+        print(f"bench/cuda_path.py: {exc}", file=sys.stderr)
+        return 2
     if not ckpt.views:
-        print(f"bench/cuda.py: {args.model} records no training cameras", file=sys.stderr)
+        print(f"bench/cuda_path.py: {args.model} records no training cameras", file=sys.stderr)
         return 2
     step = max(1, len(ckpt.views) // args.views)
     views = [replace(v, camera=v.camera.resized(args.size, args.size)) for v in ckpt.views[::step][:args.views]]

@@ -271,8 +271,7 @@ def linear_motion(model, format_name: str) -> LinearMotion:
         dc = coeffs[:, 0]
         for n in range(1, model.sh_degree_t + 1):
             dc = dc + torch.exp(-0.5 * (2.0 * math.pi * n / span) ** 2 * var_t)[:, None] * coeffs[:, n * k]
-        acceleration = (torch.zeros_like(velocity) if model.accelerations is None
-                        else model.accelerations.detach().to("cpu", torch.float64))
+        acceleration = model.accelerations_or_zeros().detach().to("cpu", torch.float64)
         return LinearMotion(
             means=model.means.double().numpy(), t_means=model.t_means.double().numpy(),
             velocity=velocity.numpy(), acceleration=acceleration.numpy(), var_t=var_t.numpy(), scales=scales.numpy(),

@@ -220,6 +220,10 @@ class Gaussians4D:
         means, velocity = self._accelerated(t, None, means, velocity)
         return self._sliced(t, sh_degree_t, None, means, cov3, velocity, marginal)
 
+    def accelerations_or_zeros(self) -> Tensor:
+        """``[N, 3]`` the accelerations, zeros for native (linear) motion: for consumers that treat both alike."""
+        return torch.zeros_like(self.means) if self.accelerations is None else self.accelerations
+
     def _accelerated(self, t: float, rows: Tensor | None, means: Tensor, velocity: Tensor) -> tuple[Tensor, Tensor]:
         """The linearly moved `means` and their `velocity` (of rows `rows`, None: all) with the acceleration term
         added at time t: + a tau^2 / 2 and + a tau. Unchanged without accelerations."""

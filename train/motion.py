@@ -64,14 +64,9 @@ class _Motion:
         t_means = model.t_means.detach().double()
         frame = torch.argmin((t_means[:, None] - t[None, :]).abs(), 1)
         dt = t[frame] - t_means
-        position = model.means.detach().double() + velocity * dt[:, None]
-        return cls(cov3, velocity, var_t, frame.numpy(), dt, position + 0.5 * _accelerations(model) * dt[:, None] ** 2)
-
-
-def _accelerations(model: Gaussians4D) -> torch.Tensor:
-    """``[N, 3]`` the model's accelerations in float64 (zeros for linear motion)."""
-    a = model.accelerations
-    return torch.zeros_like(model.means, dtype=torch.float64) if a is None else a.detach().double()
+        a = model.accelerations_or_zeros().detach().double()
+        position = model.means.detach().double() + velocity * dt[:, None] + 0.5 * a * dt[:, None] ** 2
+        return cls(cov3, velocity, var_t, frame.numpy(), dt, position)
 
 
 @dataclass
@@ -139,7 +134,8 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
     seen = count > 0
     estimate = np.zeros((len(model), 3))
     estimate[seen] = total[seen] / count[seen, None]
-    out = (motion.velocity + _accelerations(model) * motion.dt[:, None]).numpy()  # the velocity at the frame
+    a = model.accelerations_or_zeros().detach().double()
+    out = (motion.velocity + a * motion.dt[:, None]).numpy()  # the velocity at the frame
     out[seen] = estimate[seen]
     for k in np.unique(frame_of):  # the unseen take their estimated neighbours' mean, frame by frame
         here = frame_of == k
@@ -159,7 +155,7 @@ def with_velocities(model: Gaussians4D, velocity: torch.Tensor, times: list[floa
     variance, and the same position at the frame of `times` nearest each one's temporal mean. With accelerations
     (kept), `velocity` is the velocity at that frame."""
     motion = _Motion.of(model, times)
-    a, dt = _accelerations(model), motion.dt[:, None]
+    a, dt = model.accelerations_or_zeros().detach().double(), motion.dt[:, None]
     v = velocity.double() - a * dt
     means = motion.position - v * dt - 0.5 * a * dt * dt  # the position at the frame stays
     scales, scale_t, q_l, q_r = decompose_covariance_4d(

@@ -144,8 +144,7 @@ def from_gaussians4d(model: Gaussians4D) -> SplatArrays:
         motion[:, :3] = _np32(velocity)
         motion[:, 3] = _np32(0.5 / var_t)
         accel = np.zeros((n, 4), np.float32)
-        if m.accelerations is not None:
-            accel[:, :3] = _np32(m.accelerations)
+        accel[:, :3] = _np32(m.accelerations_or_zeros())
         out = SplatArrays(mean_t=mean_t, motion=motion, accel=accel, cov=_pack_cov(cov3, m.opacities, velocity),
                           sh=_pack_sh(m.sh_coeffs), sh_degree=m.sh_degree, sh_degree_t=m.sh_degree_t,
                           duration=m.duration, time_range=m.time_range)

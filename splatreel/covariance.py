@@ -162,6 +162,14 @@ def alive_at(t: float, t_means: Tensor, var_t: Tensor) -> Tensor:
     return torch.nonzero(temporal_marginal(t, t_means, var_t) > TEMPORAL_CULL)[:, 0]
 
 
+def alive_within(t0: float, t1: float, t_means: Tensor, var_t: Tensor) -> Tensor:
+    """``[N]`` bool: whether each Gaussian is drawn at some time of ``[t0, t1]`` (its `temporal_marginal` at the
+    nearest time of the span exceeds TEMPORAL_CULL). One that is not is culled from every slice of the span: it
+    shows nothing and gets no gradient there, so dropping it changes no image of the span."""
+    gap = (t0 - t_means).clamp_min(0.0) + (t_means - t1).clamp_min(0.0)
+    return temporal_marginal(0.0, gap, var_t) > TEMPORAL_CULL
+
+
 def check_fade(fade: str) -> None:
     """ValueError unless `fade` is one of TEMPORAL_FADES."""
     if fade not in TEMPORAL_FADES:

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from . import quaternion, sh
 from .constants import TEMPORAL_CULL
-from .covariance import (RotationConvention, condition_on_time, covariance_3d, covariance_4d,
+from .covariance import (RotationConvention, alive_within, condition_on_time, covariance_3d, covariance_4d,
                          decompose_covariance_3d, parse_convention, temporal_marginal)
 from .errors import ModelError
 
@@ -219,6 +219,12 @@ class Gaussians4D:
         means, marginal, _ = self._at_time(t, velocity, var_t)
         means, velocity = self._accelerated(t, None, means, velocity)
         return self._sliced(t, sh_degree_t, None, means, cov3, velocity, marginal)
+
+    def drawn_in_clip(self) -> Tensor:
+        """``[N]`` bool: whether each Gaussian is drawn at some time of `time_range` (`covariance.alive_within`);
+        one that is not shows nothing at any time of the clip."""
+        with torch.no_grad():
+            return alive_within(*self.time_range, self.t_means, self.covariance_4d()[:, 3, 3])
 
     def accelerations_or_zeros(self) -> Tensor:
         """``[N, 3]`` the accelerations, zeros for native (linear) motion: for consumers that treat both alike."""

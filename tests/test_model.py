@@ -90,6 +90,19 @@ def test_temporal_factor_is_unnormalized_gaussian_of_sigma_tt():
     assert not model.slice(1e3).visible.any()
 
 
+def test_drawn_in_clip_is_whether_some_slice_of_the_time_range_draws_the_gaussian():
+    model = random_model(400, "current", dtype=torch.float32)
+    model.t_means.data = torch.linspace(-1.0, 2.0, 400)  # before, inside and after the clip (0, 1)
+    drawn = model.drawn_in_clip()
+    assert 0 < int(drawn.sum()) < 400
+    seen = torch.zeros(400, dtype=torch.bool)
+    for t in torch.linspace(0.0, 1.0, 2001).tolist():
+        seen |= model.slice(t).visible
+    # the rule holds at the clip's ends exactly; between samples a Gaussian drawn for less than 1/2000 may slip
+    assert not (seen & ~drawn).any()
+    assert int((drawn & ~seen).sum()) <= 2
+
+
 def test_rotation_4d_inverse_and_decomposition_roundtrip():
     for conv in ("current", "legacy"):
         m = random_model(50, conv)

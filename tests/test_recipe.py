@@ -51,6 +51,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
     assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
     assert cfg.motion == "quadratic" and "quadratic motion" in text and "--motion" in text
+    assert cfg.densify.split == "spacetime" and "--split" not in text  # several views a time: official
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
 
 
@@ -69,7 +70,12 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
     assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text
     assert cfg.motion == "quadratic" and "quadratic motion" in text and "--motion" in text
+    assert cfg.densify.split == "space" and "split Gaussians in space only" in text and "--split" in text
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
+    for pixels, cap in ((25565, 60_000), (40_000, 100_000), (80_000, 150_000)):  # 2.5 per opaque pixel
+        capped, capped_decisions = auto_recipe(dataclasses.replace(traits, foreground_pixels=pixels))
+        assert capped.densify.max_gaussians == cap
+        assert f"densify up to {cap:,} Gaussians (2.5 per opaque pixel" in decisions_text(capped_decisions)
     single, single_decisions = auto_recipe(dataclasses.replace(traits, frames=1))
     assert single.clip_duration is None and "--clip-duration" not in decisions_text(single_decisions)
     assert single.motion == "linear" and "--motion" not in decisions_text(single_decisions)  # nothing moves
@@ -251,6 +257,7 @@ def test_resume_with_densification_equals_uninterrupted(matrix, tmp_path):
 def test_named_presets_are_kept():
     assert preset("efficient4d").preset == "efficient4d" and preset("full").densify.enabled
     assert preset("efficient4d").motion == preset("full").motion == "linear"
+    assert preset("full").densify.split == "spacetime"  # the official 4D split
 
 
 def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tmp_path, capsys):
@@ -261,6 +268,16 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     assert "--flow-motion-at and --inbetween-share ignored: no camera films two consecutive frames" in said
     assert "preset auto, 2 iterations" in said and "10 minutes (" in said and "--iters 2 given instead)" in said
     assert out.exists()
+
+
+def test_split_option_overrides_the_recipe(small_floor, tmp_path, capsys):
+    for given, expect in ((None, "space"), ("spacetime", "spacetime")):
+        out = tmp_path / f"{expect}.safetensors"
+        assert main(["train", str(small_floor), "--out", str(out), "--iters", "2", "--num-gaussians", "300",
+                     "--quiet", *(["--split", given] if given else [])]) == 0
+        said = capsys.readouterr().out
+        assert ("--split spacetime given)" in said) == (given is not None)
+        assert load_checkpoint(out).training["densify"]["split"] == expect
 
 
 def test_motion_option_overrides_the_recipe(matrix, tmp_path, capsys):

@@ -1,6 +1,7 @@
 """The trainer: it learns, resumes bit for bit, densifies consistently, and its CLI behaves."""
 
 import json
+import math
 
 import cv2
 import numpy as np
@@ -124,6 +125,52 @@ def test_densification_keeps_every_tensor_and_adam_state_aligned():
         assert opt.state[p]["exp_avg"].shape == p.shape
     strategy.reset_opacity(params, opt)
     assert torch.sigmoid(params["opacity_logits"]).max() <= 0.01 + 1e-6
+
+
+@pytest.mark.parametrize("split", ["spacetime", "space"])
+def test_a_split_in_space_keeps_the_parents_temporal_extent(split):
+    """Official 4DGS splits in 4D: the children are 1.6x smaller on every axis, time included. Split in space, they
+    keep the parent's temporal scale, and a static parent's children stay at its temporal mean."""
+    n = 6
+    g = torch.Generator().manual_seed(0)
+    params = {k: torch.nn.Parameter(v) for k, v in {
+        "means": torch.randn(n, 3, generator=g), "t_means": torch.full((n,), 0.5),
+        "log_scales": torch.zeros(n, 3), "log_t_scales": torch.full((n,), -1.0),
+        "quats_l": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), "quats_r": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        "opacity_logits": torch.zeros(n), "sh_dc": torch.zeros(n, 1, 3), "sh_rest": torch.zeros(n, 3, 3)}.items()}
+    opt = torch.optim.Adam([{"params": [p], "lr": 1e-3, "name": k} for k, p in params.items()], eps=1e-15)
+    state = strategy.initialize_state(n, "cpu")
+    state["grad_accum"][:] = 1.0
+    state["count"][:] = 1
+    out = strategy.densify_and_prune(params, opt, state, DensifyConfig(enabled=True, split=split), extent=10.0,
+                                     step=100, convention="current", generator=g)
+    assert out["split"] == n and out["total"] == 2 * n
+    torch.testing.assert_close(params["log_scales"].detach(), torch.full((2 * n, 3), -math.log(1.6)))
+    t_scales, t_means = params["log_t_scales"].detach(), params["t_means"].detach()
+    if split == "space":
+        assert torch.equal(t_scales, torch.full((2 * n,), -1.0)) and torch.allclose(t_means, torch.tensor(0.5))
+    else:
+        torch.testing.assert_close(t_scales, torch.full((2 * n,), -1.0 - math.log(1.6)))
+        assert (t_means - 0.5).abs().max() > 0.01
+
+
+def test_checkpoint_leaves_out_the_gaussians_no_time_of_the_clip_draws(tiny, tmp_path):
+    """Gaussians whose temporal mean drifted out of the clip are culled at every time of it: the checkpoint drops
+    them and draws the same images; the resumable state keeps them."""
+    ds = load_dataset(tiny)
+    tr = Trainer(ds, small_config(iters=1), tmp_path / "m.safetensors", progress=False)
+    t_means = tr.params["t_means"].data
+    t0, t1 = tr.time_range
+    t_means[:7] = t1 + 50.0 * (t1 - t0)  # far past the end: asleep whatever their temporal scale
+    result = tr.run()
+    ck = load_checkpoint(tmp_path / "m.safetensors")
+    n = len(tr.params["means"])
+    assert len(ck.model) == result.n_gaussians == n - 7
+    assert torch.load(state_path(tmp_path / "m.safetensors"), weights_only=False)["params"]["means"].shape[0] == n
+    inner = tr.model().detach()
+    for v, u in zip(ds.train[:3], tr.ds.train[:3]):
+        a, b = ck.model.slice(v.time), inner.slice(u.time)
+        torch.testing.assert_close(a.opacities, b.opacities[7:], rtol=2e-4, atol=2e-5)
 
 
 def test_static_stage_keeps_gaussians_static(tiny, tmp_path):

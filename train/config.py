@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 #: How the Gaussians' means can move (`TrainConfig.motion`).
 MOTIONS = ("linear", "quadratic")
+#: How densification splits a large Gaussian (`DensifyConfig.split`).
+SPLITS = ("spacetime", "space")
 
 
 @dataclass
@@ -40,6 +42,11 @@ class DensifyConfig:
     grad_threshold: float = 2e-4
     #: Clone if the largest spatial scale is <= percent_dense * scene extent, else split in two.
     percent_dense: float = 0.01
+    #: How a split places its two children: "spacetime" (the official 4DGS rule: drawn from the parent's 4D
+    #: Gaussian, every scale the temporal one included divided by 1.6) or "space" (drawn along the parent's spatial
+    #: axes only, the temporal scale kept, so the children live as long as the parent and stay seen by as many
+    #: cameras).
+    split: str = "spacetime"
     #: Remove Gaussians whose opacity falls below this.
     prune_opacity: float = 0.005
     #: After the first opacity reset also prune screen radius > this many pixels and scale > 0.1 extent.

@@ -106,17 +106,22 @@ def densify_and_prune(params: Params, optimizer, state: dict[str, Tensor], cfg: 
         for k, p in params.items():
             new[k].append(p.detach()[clone])
     if split.any():
-        # sample 2 children in 4D from the parent's Gaussian: (xyz, t) = mu + R4 (s * eps), scales / 1.6
+        # sample 2 children in 4D from the parent's Gaussian: (xyz, t) = mu + R4 (s * eps), scales / 1.6 (the
+        # temporal one too when split in spacetime)
         idx = split.nonzero()[:, 0].repeat(2)
         p = {k: v.detach()[idx] for k, v in params.items()}
         s4 = torch.cat([torch.exp(p["log_scales"]), torch.exp(p["log_t_scales"])[:, None]], -1)
         eps = torch.randn(s4.shape, generator=generator, dtype=s4.dtype, device="cpu").to(s4.device)
+        in_time = cfg.split == "spacetime"
+        if not in_time:  # children along the parent's spatial axes, at its temporal extent
+            eps[:, 3] = 0.0
         r4 = covariance.rotation_4d(p["quats_l"], p["quats_r"], convention)
         offset = (r4 @ (s4 * eps)[..., None])[..., 0]
         p["means"] = p["means"] + offset[:, :3]
         p["t_means"] = p["t_means"] + offset[:, 3]
         p["log_scales"] = p["log_scales"] - math.log(1.6)
-        p["log_t_scales"] = p["log_t_scales"] - math.log(1.6)
+        if in_time:
+            p["log_t_scales"] = p["log_t_scales"] - math.log(1.6)
         for k in params:
             new[k].append(p[k])
     added = {k: torch.cat(v) for k, v in new.items() if v}

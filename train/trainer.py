@@ -104,7 +104,7 @@ class TrainResult:
     out: Path
     iterations: int
     seconds: float
-    n_gaussians: int
+    n_gaussians: int  # in the checkpoint
     train_psnr: float
     losses: list[float] = field(default_factory=list)
     test: dict | None = None
@@ -220,7 +220,8 @@ class Trainer:
         except Exception as exc:
             raise CheckpointError(f"{sp}: unreadable training state ({str(exc).strip().splitlines()[0]})") from None
         # the parameters on the training time axis, stored as they were: a re-timed checkpoint would factor the
-        # covariances afresh and no longer match the optimizer's moments
+        # covariances afresh, and it leaves out the Gaussians the clip never draws, so it would no longer match the
+        # optimizer's moments (states written before both were stored fall back on the checkpoint)
         raw = st.get("params") or model_on_training_time(ck.model, self.axis).tensors()
         self._make_optimizer(raw)
         self.optimizer.load_state_dict(st["optimizer"])
@@ -257,9 +258,12 @@ class Trainer:
         """The model on the dataset's times (what the checkpoint holds; `model` is on the trainer's own axis), from
         `trained` (default: the current parameters)."""
         trained = trained or {k: v.detach().cpu() for k, v in self.params.items()}
-        return model_on_dataset_time(Gaussians4D(**trained, sh_degree=self.cfg.sh_degree,
-                                                 sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
-                                                 rotation_convention=self.cfg.rotation_convention), self.axis)
+        model = model_on_dataset_time(Gaussians4D(**trained, sh_degree=self.cfg.sh_degree,
+                                                  sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
+                                                  rotation_convention=self.cfg.rotation_convention), self.axis)
+        # Gaussians whose temporal mean drifted out of the clip draw nothing in it: the checkpoint leaves them out
+        # (they stay in the resumable state, which resumes the run exactly)
+        return model.select(model.drawn_in_clip())
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
@@ -427,8 +431,9 @@ class Trainer:
         self._last_vstep = v
 
     # --- output ---------------------------------------------------------------------------------------------
-    def save(self) -> None:
-        """Write the checkpoint and the resumable state beside it (both atomically)."""
+    def save(self) -> int:
+        """Write the checkpoint and the resumable state beside it (both atomically); returns how many Gaussians the
+        checkpoint holds."""
         trained = {k: v.detach().cpu() for k, v in self.params.items()}
         model = self.dataset_model(trained)
         found = self.alpha_conflicts
@@ -443,11 +448,11 @@ class Trainer:
                                for v in self.source.train])
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
                  "elapsed": self.elapsed(), "n_initial": self.n_initial,
-                 "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()}}
-        if not self.axis.identity:
-            state["params"] = trained
+                 "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()},
+                 "params": trained}
         with atomic_path(state_path(self.out), force=True) as tmp:
             torch.save(state, tmp)
+        return len(model)
 
     def run(self, stop_at: int | None = None) -> TrainResult:
         """Train until the recipe's end (its iterations, or its time budget) or iteration `stop_at`, then save."""
@@ -482,9 +487,9 @@ class Trainer:
             self.save()
             raise
         bar.close()
-        self.save()
-        return TrainResult(self.out, self.step, time.perf_counter() - start_time, len(self.params["means"]),
-                           ema_psnr or float("nan"), self.losses)
+        saved = self.save()
+        return TrainResult(self.out, self.step, time.perf_counter() - start_time, saved, ema_psnr or float("nan"),
+                           self.losses)
 
     def evaluate_test(self) -> dict | None:
         """Scores of the model as the checkpoint holds it (on the dataset's times) at the test views."""

@@ -25,7 +25,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
-    from splatreel.train.config import MOTIONS, PRESETS
+    from splatreel.train.config import MOTIONS, PRESETS, SPLITS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -54,6 +54,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--num-gaussians", type=count, help="Gaussians at initialisation (default: the preset's; train prints it)")
     p.add_argument("--max-gaussians", type=count, help="cap on densification (default: the recipe's)")
     p.add_argument("--no-densify", action="store_true", help="keep the initial Gaussians (no clone, split or prune)")
+    p.add_argument("--split", choices=SPLITS,
+                   help="how densification splits a large Gaussian: space (the children keep its temporal extent, "
+                        "so they stay seen by as many cameras) or spacetime (official 4DGS: they are also 1.6x "
+                        "shorter-lived and scattered in time) (default: the preset's, space for auto; a resumed run keeps "
+                        "its own)")
     p.add_argument("--init", choices=["auto", "ball", "frustum", "points"], default="auto",
                    help="initial Gaussians: in a ball carved by the masks, over the volume the cameras see, or on a "
                         "point cloud (default: the dataset's fused.ply / points3d.ply / COLMAP points3D when it has "
@@ -143,6 +148,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
         dens["max_gaussians"] = args.max_gaussians
     if args.no_densify:
         dens["enabled"] = False
+    if args.split and not resumed:
+        dens["split"] = args.split
     if dens:
         over["densify"] = dataclasses.replace(cfg.densify, **dens)
     return dataclasses.replace(cfg, **{k: v for k, v in over.items() if v is not None}), decisions

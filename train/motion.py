@@ -56,6 +56,7 @@ class _Motion:
     frame: np.ndarray  # [N] index into the frame times
     dt: torch.Tensor  # [N] that frame's time minus the temporal mean
     position: torch.Tensor  # [N, 3] the sliced mean at that frame
+    acceleration: torch.Tensor  # [N, 3] (zeros for linear motion)
 
     @classmethod
     def of(cls, model: Gaussians4D, times: list[float]) -> "_Motion":
@@ -66,7 +67,7 @@ class _Motion:
         dt = t[frame] - t_means
         a = model.accelerations_or_zeros().detach().double()
         position = model.means.detach().double() + velocity * dt[:, None] + 0.5 * a * dt[:, None] ** 2
-        return cls(cov3, velocity, var_t, frame.numpy(), dt, position)
+        return cls(cov3, velocity, var_t, frame.numpy(), dt, position, a)
 
 
 @dataclass
@@ -134,8 +135,7 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
     seen = count > 0
     estimate = np.zeros((len(model), 3))
     estimate[seen] = total[seen] / count[seen, None]
-    a = model.accelerations_or_zeros().detach().double()
-    out = (motion.velocity + a * motion.dt[:, None]).numpy()  # the velocity at the frame
+    out = (motion.velocity + motion.acceleration * motion.dt[:, None]).numpy()  # the velocity at the frame
     out[seen] = estimate[seen]
     for k in np.unique(frame_of):  # the unseen take their estimated neighbours' mean, frame by frame
         here = frame_of == k
@@ -155,7 +155,7 @@ def with_velocities(model: Gaussians4D, velocity: torch.Tensor, times: list[floa
     variance, and the same position at the frame of `times` nearest each one's temporal mean. With accelerations
     (kept), `velocity` is the velocity at that frame."""
     motion = _Motion.of(model, times)
-    a, dt = model.accelerations_or_zeros().detach().double(), motion.dt[:, None]
+    a, dt = motion.acceleration, motion.dt[:, None]
     v = velocity.double() - a * dt
     means = motion.position - v * dt - 0.5 * a * dt * dt  # the position at the frame stays
     scales, scale_t, q_l, q_r = decompose_covariance_4d(

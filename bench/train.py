@@ -47,7 +47,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
     import torch
 
     from splatreel.train.evaluate import view_target
-    from splatreel.train.losses import dssim, l1
+    from splatreel.train.losses import image_loss
     from splatreel.rasterize import rasterize
     from splatreel.covariance import alive_at
 
@@ -71,9 +71,7 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         out = rasterize(g, view.camera, trainer.bg, sh_degree=cfg.sh_degree)
         sync()
         t2 = time.perf_counter()
-        loss = cfg.lambda_l1 * l1(out.rgb, target) + cfg.lambda_dssim * dssim(out.rgb, target)
-        if mask is not None:
-            loss = loss + cfg.lambda_mask * l1(out.alpha, mask)
+        loss = image_loss(out.rgb, out.alpha, target, mask, cfg.lambda_l1, cfg.lambda_dssim, cfg.lambda_mask)
         sync()
         t3 = time.perf_counter()
         loss.backward()

@@ -18,6 +18,9 @@ SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_C1 = 0.01 ** 2
 SSIM_C2 = 0.03 ** 2
+#: How far from the pixels where two images differ their SSIM map can differ from 1: a pixel's window (radius 5)
+#: reaches pixels whose own windows reach 5 further.
+SSIM_REACH = 2 * (SSIM_WINDOW // 2)
 
 
 def gaussian_kernel_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype=torch.float32) -> Tensor:
@@ -84,3 +87,47 @@ def psnr(a: Tensor, b: Tensor) -> float:
     """PSNR in dB over all pixels and channels (images in [0, 1])."""
     mse = float(((a.detach().clamp(0, 1) - b.detach()) ** 2).mean())
     return 10.0 * math.log10(1.0 / mse) if mse > 0 else float("inf")
+
+
+def loss_window(*alphas: Tensor) -> tuple[slice, slice]:
+    """Rows and columns of the box, grown by `SSIM_REACH` and clipped to the image, outside which every ``[H, W]``
+    alpha is zero (the whole image when none is; any box would do then).
+
+    Where a render and its target both show nothing but the background, the L1 and D-SSIM terms are zero with zero
+    gradient, and the SSIM windows of the box's pixels see the same pixels in the box as in the whole image (or the
+    same zero padding): each term summed over the box equals the whole image's sum (`image_loss`).
+    """
+    covered = alphas[0] > 0
+    for a in alphas[1:]:
+        covered = covered | (a > 0)
+    h, w = covered.shape
+    rows = torch.nonzero(covered.any(1)).flatten()
+    if rows.numel() == 0:
+        return slice(0, h), slice(0, w)
+    cols = torch.nonzero(covered.any(0)).flatten()
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (slice(max(r0 - SSIM_REACH, 0), min(r1 + SSIM_REACH, h)),
+            slice(max(c0 - SSIM_REACH, 0), min(c1 + SSIM_REACH, w)))
+
+
+def image_loss(rgb: Tensor, alpha: Tensor, target: Tensor, mask: Tensor | None, l1_weight: float,
+               dssim_weight: float, mask_weight: float,
+               pixel_weights: tuple[Tensor | None, Tensor | None, Tensor | None] = (None, None, None)) -> Tensor:
+    """The training loss of one render: ``l1_weight L1(rgb) + dssim_weight D-SSIM(rgb) + mask_weight L1(alpha)``,
+    each a mean over the image's pixels, optionally weighted per pixel (`pixel_weights`: ``[H, W]`` maps for the
+    three terms, e.g. confidence maps). The alpha term needs a `mask` (the target's alpha).
+
+    With a `mask` the terms are computed over `loss_window` only, the box where the render or the target is not the
+    background, and scaled by its share of the image: the same loss and gradients as over the whole image, at a
+    fraction of the cost when the subject covers a fraction of the frame (an object on a transparent background).
+    """
+    if mask is None:
+        return l1_weight * l1(rgb, target, pixel_weights[0]) + dssim_weight * dssim(rgb, target, pixel_weights[1])
+    rows, cols = loss_window(alpha.detach(), mask)
+    share = (rows.stop - rows.start) * (cols.stop - cols.start) / (mask.shape[0] * mask.shape[1])
+    w_rgb, w_ssim, w_alpha = (None if w is None else w[rows, cols] for w in pixel_weights)
+    rgb, target = rgb[rows, cols], target[rows, cols]
+    loss = l1_weight * l1(rgb, target, w_rgb) + dssim_weight * dssim(rgb, target, w_ssim)
+    if mask_weight:
+        loss = loss + mask_weight * l1(alpha[rows, cols], mask[rows, cols], w_alpha)
+    return share * loss

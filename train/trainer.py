@@ -34,7 +34,7 @@ from .evaluate import evaluate, target_bytes, view_target
 from .flow import inbetween_views
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
-from .losses import dssim, l1, psnr
+from .losses import image_loss, psnr
 from .motion import flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
@@ -335,10 +335,8 @@ class Trainer:
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
             if cfg.densify.enabled:
                 out.means2d.retain_grad()
-            w_rgb, w_ssim, w_alpha = self._loss_weights(i, factor)
-            loss = cfg.lambda_l1 * l1(out.rgb, target, w_rgb) + cfg.lambda_dssim * dssim(out.rgb, target, w_ssim)
-            if mask is not None and cfg.lambda_mask:
-                loss = loss + cfg.lambda_mask * l1(out.alpha, mask, w_alpha)
+            loss = image_loss(out.rgb, out.alpha, target, mask, cfg.lambda_l1, cfg.lambda_dssim, cfg.lambda_mask,
+                              self._loss_weights(i, factor))
             (loss / cfg.batch_size).backward()
             if cfg.densify.enabled and out.means2d.grad is not None:
                 strategy.accumulate(self.strategy_state, out.means2d.grad, out.radii, view.camera.width,

@@ -89,17 +89,15 @@ def psnr(a: Tensor, b: Tensor) -> float:
     return 10.0 * math.log10(1.0 / mse) if mse > 0 else float("inf")
 
 
-def loss_window(*alphas: Tensor) -> tuple[slice, slice]:
-    """Rows and columns of the box, grown by `SSIM_REACH` and clipped to the image, outside which every ``[H, W]``
-    alpha is zero (the whole image when none is; any box would do then).
+def loss_window(rendered: Tensor, target: Tensor) -> tuple[slice, slice]:
+    """Rows and columns of the box, grown by `SSIM_REACH` and clipped to the image, outside which both ``[H, W]``
+    alphas are zero (the whole image when both are; any box would do then).
 
     Where a render and its target both show nothing but the background, the L1 and D-SSIM terms are zero with zero
     gradient, and the SSIM windows of the box's pixels see the same pixels in the box as in the whole image (or the
     same zero padding): each term summed over the box equals the whole image's sum (`image_loss`).
     """
-    covered = alphas[0] > 0
-    for a in alphas[1:]:
-        covered = covered | (a > 0)
+    covered = (rendered > 0) | (target > 0)
     h, w = covered.shape
     rows = torch.nonzero(covered.any(1)).flatten()
     if rows.numel() == 0:

@@ -386,9 +386,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         proj = ProjectedGaussians(means2d=means2d, depths=depths, cov2d=cov2d_all)
     else:
         front_idx = None if bool(front.all()) else front.nonzero()[:, 0]
-        sub = g if front_idx is None else Gaussians3D(
-            means=g.means[front_idx], covariances=g.covariances[front_idx], opacities=g.opacities[front_idx],
-            sh=g.sh[front_idx], visible=g.visible[front_idx], sh_degree=g.sh_degree)
+        sub = g if front_idx is None else g.select(front_idx)
         proj = project_gaussians(sub.means, sub.covariances, camera)
         if front_idx is None:
             means2d = proj.means2d
@@ -423,7 +421,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         s_max, ext_x, ext_y = alpha_extent(safe_cov2d.detach(), opacities.detach())
         rects = tile_rects(uv, radii_f, ext_x, ext_y, camera) * keep[:, None]  # culled: empty
     background4 = torch.cat([bg, bg.new_zeros(1)])  # the depth channel composites over 0
-    means2d_sub = proj.means2d if front_idx is None else means2d[front_idx]  # through `means2d` for retain_grad
+    means2d_sub = proj.means2d if front_idx is None else means2d.index_select(0, front_idx)  # through `means2d` for retain_grad
 
     if uses_gsplat(device):
         image, alpha = _composite_gsplat(means2d_sub, conics, channels, opacities, background4, rects, order, camera)

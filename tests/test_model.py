@@ -9,7 +9,7 @@ import torch
 from splatreel import covariance, quaternion
 from splatreel.constants import TEMPORAL_CULL
 from splatreel.errors import ModelError
-from splatreel.model import Gaussians4D, KeyframedGaussians, model_bounds, static_gaussians4d
+from splatreel.model import Gaussians4D, KeyframedGaussians, model_bounds, static_gaussians4d, take_rows
 
 
 def hamilton(a, b):
@@ -292,3 +292,19 @@ def test_accelerations_are_validated_selected_and_differentiable():
     a = model.accelerations.float().clone().requires_grad_(True)
     replace(model.to(dtype=torch.float32), accelerations=a).slice(0.9).means.sum().backward()
     assert a.grad is not None and a.grad.abs().sum() > 0
+
+
+def test_take_rows_gathers_like_indexing_with_the_same_gradient():
+    x = torch.randn(10, 3, dtype=torch.float64, requires_grad=True)
+    rows = torch.tensor([7, 2, 2, 9])  # a repeated row gets both gradients
+    weights = torch.randn(4, 3, dtype=torch.float64)
+    grads = []
+    for gather in (take_rows, lambda v, r: v[r]):
+        x.grad = None
+        out = gather(x, rows)
+        (out * weights).sum().backward()
+        grads.append((out.detach(), x.grad.clone()))
+    assert torch.equal(grads[0][0], grads[1][0]) and torch.allclose(grads[0][1], grads[1][1])
+    mask = torch.zeros(10, dtype=torch.bool)
+    mask[[1, 4]] = True
+    assert torch.equal(take_rows(x, mask), x[mask])

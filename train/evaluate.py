@@ -19,11 +19,24 @@ LPIPS_NOTE = ("LPIPS not computed: it needs pretrained network weights, which sp
 
 def view_target(view: DatasetImage, background, device="cpu") -> tuple[torch.Tensor, torch.Tensor | None]:
     """(RGB ``[H,W,3]`` composited on `background`, alpha ``[H,W]`` or None) as float32 tensors in [0, 1]."""
-    rgb = torch.from_numpy(view.image).to(device=device, dtype=torch.float32) / 255.0
-    if view.alpha is None:
+    return target_from_bytes(*view_bytes(view, device), background)
+
+
+def view_bytes(view: DatasetImage, device="cpu") -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(RGB ``[H,W,3]``, alpha ``[H,W]`` or None) of the view as uint8 tensors on `device` (a quarter of the floats'
+    memory: what a trainer keeps on a GPU)."""
+    alpha = None if view.alpha is None else torch.from_numpy(view.alpha).to(device)
+    return torch.from_numpy(view.image).to(device), alpha
+
+
+def target_from_bytes(image: torch.Tensor, alpha: torch.Tensor | None, background
+                      ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """`view_target` of `view_bytes`, on their device."""
+    rgb = image.to(torch.float32) / 255.0
+    if alpha is None:
         return rgb, None
-    a = torch.from_numpy(view.alpha).to(device=device, dtype=torch.float32) / 255.0
-    bg = torch.as_tensor(background, dtype=torch.float32, device=device)
+    a = alpha.to(torch.float32) / 255.0
+    bg = torch.as_tensor(background, dtype=torch.float32, device=image.device)
     return rgb * a[..., None] + bg * (1 - a[..., None]), a
 
 

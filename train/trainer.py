@@ -30,11 +30,11 @@ from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import MOTIONS, TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
-from .evaluate import evaluate, target_bytes, view_target
+from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes, view_target
 from .flow import inbetween_views
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
-from .losses import image_loss, psnr
+from .losses import image_loss, mse, psnr_of_mse
 from .motion import flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
@@ -139,6 +139,7 @@ class Trainer:
         self.alpha_conflicts: AlphaConflicts = find_alpha_conflicts(dataset)
         # per-pixel loss weights of each image of `_views` by (index, downscale factor): see `_loss_weights`
         self._pixel_weight: dict[tuple[int, int], torch.Tensor | None] = {}
+        self._bytes: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor | None]] = {}  # off the CPU: `_target`
         if resume:
             self._resume()
         else:
@@ -322,14 +323,14 @@ class Trainer:
             self.set_flow_motion()
         factor = self._resolution_factor(v)
         static = v < cfg.static_iters
-        loss_sum, psnr_sum = 0.0, 0.0
+        losses, errors = [], []  # tensors, read once per step: on a GPU each read waits for the device
         model = self.model()  # the parameters only change at the optimizer step, after the batch
         with torch.no_grad():
             var_t = model.covariance_4d()[:, 3, 3]
         for _ in range(cfg.batch_size):
             i = self._pick(static)
             view = self._views(factor)[i]
-            target, mask = view_target(view, self.ds.background, self.device)
+            target, mask = self._target(i, factor)
             shown = alive_at(view.time, model.t_means.detach(), var_t)
             g = model.slice(view.time, sh_degree_t=deg_t, rows=shown)
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
@@ -341,12 +342,12 @@ class Trainer:
             if cfg.densify.enabled and out.means2d.grad is not None:
                 strategy.accumulate(self.strategy_state, out.means2d.grad, out.radii, view.camera.width,
                                     view.camera.height, shown)
-            loss_sum += float(loss.detach())
-            psnr_sum += psnr(out.rgb, target)
+            losses.append(loss.detach())
+            errors.append(mse(out.rgb, target))
         regularisers = self.regularisers(model, static)
         if regularisers is not None:
             regularisers.backward()
-            loss_sum += float(regularisers.detach()) * cfg.batch_size
+            losses.append(regularisers.detach() * cfg.batch_size)
         if static:  # static-to-dynamic: time frozen, q_r tied to q_l (static under the 'current' convention)
             for k in ("t_means", "log_t_scales", "quats_r", "accelerations"):
                 if k in self.params:
@@ -358,7 +359,19 @@ class Trainer:
             with torch.no_grad():
                 self.params["quats_r"].copy_(self.params["quats_l"])
         self.step += 1
+        loss_sum, psnr_sum = torch.stack([torch.stack(losses).sum(), psnr_of_mse(torch.stack(errors)).sum()]).tolist()
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
+
+    def _target(self, i: int, factor: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(target RGB, alpha or None) of image `i` of `_views(factor)` as `view_target` makes them. Off the CPU the
+        images are uploaded once, as bytes: a copy from host memory each step would wait for the device."""
+        view = self._views(factor)[i]
+        if self.device.type == "cpu":
+            return view_target(view, self.ds.background, self.device)
+        key = (i, factor)
+        if key not in self._bytes:
+            self._bytes[key] = view_bytes(view, self.device)
+        return target_from_bytes(*self._bytes[key], self.ds.background)
 
     def regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
         """The step's terms on the Gaussians themselves rather than on an image, once per step (they do not depend

@@ -21,6 +21,10 @@ rasterizer forward, losses, backward, the regularisers and Adam, in milliseconds
 images, and what it does once (finding the live Gaussians, the regularisers, the Adam update) is shared out among
 them. On a CUDA device each phase is synchronised before it is timed.
 
+`reference_ms` is a fixed piece of work timed beside each sample: the bundled model sliced and rasterized at its
+first recorded camera at 256², forward and backward (median of 12). This shared machine's speed drifts by up to a
+third between days; step counts of runs on different days compare through it.
+
 `--datasets DIR` keeps the generated datasets in DIR/NAME and reads them from there when present (the GL renderer
 that makes them is then not needed: a machine without a display driver can run datasets made elsewhere).
 """
@@ -38,6 +42,7 @@ from pathlib import Path
 
 #: Every this-many-th training image is scored for the fit (`train_view_psnr`).
 FIT_EVERY = 8
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
@@ -90,6 +95,38 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
                                   (t6 - t5) / cfg.batch_size)):
             phases[k] += 1000.0 * dt / repeats
     return {k: round(v, 1) for k, v in phases.items()}
+
+
+def reference_ms(device: str | None, repeats: int = 12) -> float:
+    """Median milliseconds of a fixed piece of work: slicing and rasterizing the bundled model at its first recorded
+    camera (at 256x256), forward and backward. Timed beside each sample, it says how fast the machine was during
+    that run: step counts from runs on different days compare through it (this shared machine's speed drifts by
+    a third)."""
+    import statistics
+    from dataclasses import replace
+
+    import torch
+
+    from splatreel.checkpoint import load_checkpoint
+    from splatreel.rasterize import rasterize
+    from splatreel.train.trainer import pick_device
+
+    ckpt = load_checkpoint(ROOT / "samples" / "spinner.safetensors")
+    dev = pick_device(device or "auto")
+    model = ckpt.model.to(device=dev, dtype=torch.float32)
+    model = replace(model, **{k: v.detach().clone().requires_grad_() for k, v in model.tensors().items()})
+    view, background = ckpt.views[0], torch.tensor(ckpt.background, dtype=torch.float32, device=dev)
+    camera = view.camera.resized(256, 256)
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    samples = []
+    for r in range(repeats + 3):  # three to warm up
+        sync()
+        t = time.perf_counter()
+        out = rasterize(model.slice(view.time), camera, background)
+        (out.rgb.sum() + out.alpha.sum()).backward()
+        sync()
+        samples.append(time.perf_counter() - t)
+    return round(1e3 * statistics.median(samples[3:]), 2)
 
 
 def needle_share(trainer, ratio: float = 10.0) -> float:
@@ -157,6 +194,7 @@ def main() -> None:
                 write_dataset(name, data)
             gen_s = time.perf_counter() - t
             ds = load_dataset(data)
+            ref_ms = reference_ms(args.device)
             traits = read_traits(ds)
             cfg, decisions = auto_recipe(traits)
             if args.iters:
@@ -188,11 +226,11 @@ def main() -> None:
                          "decisions": [d.line() for d in decisions],
                          "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
-                         "generate_seconds": round(gen_s, 2), "device": str(tr.device),
+                         "generate_seconds": round(gen_s, 2), "device": str(tr.device), "reference_ms": ref_ms,
                          "step": step_breakdown(tr, args.profile_steps) if args.profile_steps else None})
             print(rows[-1], flush=True)
     print(f"\n{'sample':<9}{'regime':<21}{'seconds':>8}{'iters':>7}{'gaussians':>11}{'test PSNR':>10}"
-          f"{'SSIM':>8}{'on black':>9}{'fit':>7}{'exact':>7}{'nearest':>9}{'median':>8}{'needles':>9}")
+          f"{'SSIM':>8}{'on black':>9}{'fit':>7}{'exact':>7}{'nearest':>9}{'median':>8}{'needles':>9}{'ref ms':>8}")
     for r in rows:
         bound = "-" if r["upper_bound_psnr"] is None else f"{r['upper_bound_psnr']:.2f}"
         print(f"{r['sample']:<9}{r['regime']:<21}{r['seconds']:>8.1f}{r['iters']:>7}{r['n_gaussians']:>11,}"
@@ -200,7 +238,7 @@ def main() -> None:
               f"{r['train_view_psnr']:>7.2f}{bound:>7}"
               f"{r['nearest_image_psnr']:>9.2f}"
               f"{r['median_image_psnr']:>8.2f}{100 * r['needle_share']:>8.2f}%"
-              f"{100 * r['sliced_needle_share']:>7.2f}%")
+              f"{100 * r['sliced_needle_share']:>7.2f}%{r['reference_ms']:>8.1f}")
     if args.profile_steps:
         print("\nstep breakdown, ms per training image (full resolution, final model; the regularisers and Adam shared "
               "out over the batch)")

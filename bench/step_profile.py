@@ -101,8 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(f"{result['device']} ({result['compositor']} compositing), {n_gaussians:,} Gaussians, "
           f"{cfg.batch_size} images a step; set-up {setup_s:.1f} s")
-    print(f"{step_ms:.1f} ms a step, {step_ms / cfg.batch_size:.2f} ms an image"
-          + ("" if device_ms is None else f"; the GPU busy {device_ms:.1f} ms of it ({100 * device_ms / step_ms:.0f} %)"))
+    busy = "" if device_ms is None else f"; the GPU busy {device_ms:.1f} ms of it ({100 * device_ms / step_ms:.0f} %)"
+    print(f"{step_ms:.1f} ms a step, {step_ms / cfg.batch_size:.2f} ms an image{busy}")
     print("per step: " + ", ".join(f"{k} {v:.0f}" for k, v in per_step.items() if v))
     if cuda:
         print(events.table(sort_by="self_cuda_time_total", row_limit=args.rows))

@@ -421,7 +421,8 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         s_max, ext_x, ext_y = alpha_extent(safe_cov2d.detach(), opacities.detach())
         rects = tile_rects(uv, radii_f, ext_x, ext_y, camera) * keep[:, None]  # culled: empty
     background4 = torch.cat([bg, bg.new_zeros(1)])  # the depth channel composites over 0
-    means2d_sub = proj.means2d if front_idx is None else means2d.index_select(0, front_idx)  # through `means2d` for retain_grad
+    # through `means2d`, for retain_grad
+    means2d_sub = proj.means2d if front_idx is None else means2d.index_select(0, front_idx)
 
     if uses_gsplat(device):
         image, alpha = _composite_gsplat(means2d_sub, conics, channels, opacities, background4, rects, order, camera)

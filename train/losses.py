@@ -8,8 +8,6 @@ Images are ``[..., H, W, C]`` float tensors in [0, 1] (channels last, like the r
 
 from __future__ import annotations
 
-import math
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor

@@ -99,34 +99,21 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
 
 def reference_ms(device: str | None, repeats: int = 12) -> float:
     """Median milliseconds of a fixed piece of work: slicing and rasterizing the bundled model at its first recorded
-    camera (at 256x256), forward and backward. Timed beside each sample, it says how fast the machine was during
-    that run: step counts from runs on different days compare through it (this shared machine's speed drifts by
-    a third)."""
-    import statistics
+    camera (at 256x256), forward and backward (`cuda_path.time_step`, after a warm-up). Timed beside each sample, it
+    says how fast the machine was during that run: step counts from runs on different days compare through it (this
+    shared machine's speed drifts by a third)."""
     from dataclasses import replace
 
     import torch
+    from cuda_path import time_step  # bench/cuda_path.py, this script's neighbour
 
     from splatreel.checkpoint import load_checkpoint
-    from splatreel.rasterize import rasterize
     from splatreel.train.trainer import pick_device
 
     ckpt = load_checkpoint(ROOT / "samples" / "spinner.safetensors")
-    dev = pick_device(device or "auto")
-    model = ckpt.model.to(device=dev, dtype=torch.float32)
-    model = replace(model, **{k: v.detach().clone().requires_grad_() for k, v in model.tensors().items()})
-    view, background = ckpt.views[0], torch.tensor(ckpt.background, dtype=torch.float32, device=dev)
-    camera = view.camera.resized(256, 256)
-    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
-    samples = []
-    for r in range(repeats + 3):  # three to warm up
-        sync()
-        t = time.perf_counter()
-        out = rasterize(model.slice(view.time), camera, background)
-        (out.rgb.sum() + out.alpha.sum()).backward()
-        sync()
-        samples.append(time.perf_counter() - t)
-    return round(1e3 * statistics.median(samples[3:]), 2)
+    view = replace(ckpt.views[0], camera=ckpt.views[0].camera.resized(256, 256))
+    background = torch.tensor(ckpt.background, dtype=torch.float32)
+    return round(time_step(ckpt.model, [view], background, pick_device(device or "auto"), repeats), 2)
 
 
 def needle_share(trainer, ratio: float = 10.0) -> float:

@@ -131,9 +131,10 @@ def image_loss(rgb: Tensor, alpha: Tensor, target: Tensor, mask: Tensor | None, 
     """
     if mask is None:
         return l1_weight * l1(rgb, target, pixel_weights[0]) + dssim_weight * dssim(rgb, target, pixel_weights[1])
-    h, w = mask.shape
-    rows, cols = loss_window(alpha.detach(), mask) if mask.device.type == "cpu" else (slice(0, h), slice(0, w))
-    share = (rows.stop - rows.start) * (cols.stop - cols.start) / (h * w)
+    height, width = mask.shape
+    whole = (slice(0, height), slice(0, width))
+    rows, cols = loss_window(alpha.detach(), mask) if mask.device.type == "cpu" else whole
+    share = (rows.stop - rows.start) * (cols.stop - cols.start) / (height * width)
     w_rgb, w_ssim, w_alpha = (None if w is None else w[rows, cols] for w in pixel_weights)
     rgb, target = rgb[rows, cols], target[rows, cols]
     loss = l1_weight * l1(rgb, target, w_rgb) + dssim_weight * dssim(rgb, target, w_ssim)

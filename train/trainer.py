@@ -139,7 +139,7 @@ class Trainer:
         self.alpha_conflicts: AlphaConflicts = find_alpha_conflicts(dataset)
         # per-pixel loss weights of each image of `_views` by (index, downscale factor): see `_loss_weights`
         self._pixel_weight: dict[tuple[int, int], torch.Tensor | None] = {}
-        self._bytes: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor | None]] = {}  # off the CPU: `_target`
+        self._bytes: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor | None]] = {}  # see `_target`
         if resume:
             self._resume()
         else:
@@ -363,14 +363,12 @@ class Trainer:
         return loss_sum / cfg.batch_size, psnr_sum / cfg.batch_size
 
     def _target(self, i: int, factor: int) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """(target RGB, alpha or None) of image `i` of `_views(factor)` as `view_target` makes them. Off the CPU the
-        images are uploaded once, as bytes: a copy from host memory each step would wait for the device."""
-        view = self._views(factor)[i]
-        if self.device.type == "cpu":
-            return view_target(view, self.ds.background, self.device)
+        """(target RGB, alpha or None) of image `i` of `_views(factor)` as `view_target` makes them. Each image is put
+        on the device once, as bytes: on a GPU a copy from host memory each step would wait for the device (on the CPU
+        the bytes are the dataset's own arrays, not a copy)."""
         key = (i, factor)
         if key not in self._bytes:
-            self._bytes[key] = view_bytes(view, self.device)
+            self._bytes[key] = view_bytes(self._views(factor)[i], self.device)
         return target_from_bytes(*self._bytes[key], self.ds.background)
 
     def regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:

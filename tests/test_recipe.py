@@ -12,7 +12,7 @@ import torch
 
 from splatreel.checkpoint import load_checkpoint
 from splatreel.cli import main
-from splatreel.train.config import preset
+from splatreel.train.config import MATRIX_MINUTES, ONE_VIEW_MINUTES, preset
 from splatreel.train.data import load_dataset
 from splatreel.train.points import find_point_cloud, read_point_cloud
 from splatreel.train.recipe import MATRIX_TEMPORAL_STD_FRAMES, auto_recipe, read_traits
@@ -36,7 +36,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert traits.views_per_time == 4 and not traits.one_view_per_time
     assert traits.has_alpha and not traits.open_backdrop and traits.point_cloud is None
     cfg, decisions = auto_recipe(traits)
-    assert cfg.preset == "auto" and cfg.minutes == 5.0 and cfg.init == "ball"
+    assert cfg.preset == "auto" and cfg.minutes == MATRIX_MINUTES == 5.0 and cfg.init == "ball"
     assert cfg.lambda_scale_ratio == 0.1 and cfg.densify.enabled and cfg.densify.budget_curve
     assert cfg.resolution_ramp == ()  # 64 px: nothing to gain from coarser images
     assert cfg.batch_size == 8 and cfg.static_share == 0.0
@@ -59,7 +59,7 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     traits = read_traits(load_dataset(small_floor))
     assert traits.one_view_per_time and traits.open_backdrop
     cfg, decisions = auto_recipe(traits)
-    assert cfg.minutes == 10.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
+    assert cfg.minutes == ONE_VIEW_MINUTES == 10.0 and cfg.init == "frustum" and cfg.lambda_scale_ratio > 0
     assert cfg.t_scale_init_frames == preset("efficient4d").t_scale_init_frames  # 12 frames: a tenth is less
     text = decisions_text(decisions)
     assert "one camera per time" in text and "floor or backdrop" in text and "--init" in text
@@ -224,6 +224,14 @@ def test_densification_grows_under_the_cap_along_the_budget_curve(matrix, tmp_pa
         share = min(max((step - d.start) / (d.stop - d.start), 0.0), 1.0)
         assert n <= 1500 + share * 1000 + 1, (step, n)
     assert len(tr.optimizer.state[tr.params["means"]]["exp_avg"]) == counts[-1]
+
+
+def test_help_states_the_recipes_budgets_and_motion(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    said = " ".join(capsys.readouterr().out.split())
+    assert "5 for an image matrix, 10 for one camera per time" in said
+    assert "quadratic for more than one frame" in said
 
 
 def test_minutes_ends_on_time(matrix, tmp_path, capsys):

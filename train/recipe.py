@@ -17,7 +17,7 @@ import numpy as np
 
 from splatreel.datasets import Dataset
 
-from .config import TrainConfig, preset
+from .config import MATRIX_MINUTES, ONE_VIEW_MINUTES, TrainConfig, preset
 from .points import find_point_cloud
 
 #: Layouts whose views come from a video-to-multi-view generator rather than a renderer or a capture.
@@ -157,8 +157,8 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
         # measured on the floor sample with the trainer's time axis: 3 minutes 22.1 and 22.3 dB held out (SSIM
         # 0.871, 0.877), 10 minutes 22.6 (SSIM 0.902). Before that axis, longer runs fitted each view better and
         # the others worse (8 minutes 19.9, 500 steps 21.1)
-        changes.update(minutes=10.0)
-        decisions.append(Decision("one camera per time: 10 minutes",
+        changes.update(minutes=ONE_VIEW_MINUTES)
+        decisions.append(Decision(f"one camera per time: {ONE_VIEW_MINUTES:g} minutes",
                                   f"{traits.images} images at {traits.frames} times, each seen once: more steps "
                                   "still gain", "--minutes"))
         # measured on the floor sample (96 frames, 3 minutes): sqrt(3) frames 21.0 dB held out, 10 frames 21.3,
@@ -186,9 +186,9 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
         # 24.1, 16 images 24.0: fewer, better-averaged steps fit an image matrix better in the same time.
         # 4 -> 5 minutes on the four matrix samples: texture 29.7 -> 30.4, wave 33.5 -> 33.9, morph 31.3 -> 31.1,
         # spinner 24.1 -> 23.8 (run-to-run spread about 0.2 dB)
-        changes.update(minutes=5.0, batch_size=8)
+        changes.update(minutes=MATRIX_MINUTES, batch_size=8)
         decisions.append(Decision(
-            "image matrix: 5 minutes",
+            f"image matrix: {MATRIX_MINUTES:g} minutes",
             f"{traits.views_per_time:.0f} views per time", "--minutes"))
         if traits.frames > 1:
             # measured on the spinner (5 minutes, held out at in-between times): 25.4 / 25.6 dB without, 26.0 with

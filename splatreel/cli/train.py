@@ -25,7 +25,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
-    from splatreel.train.config import MOTIONS, PRESETS, SPLITS
+    from splatreel.train.config import MATRIX_MINUTES, MOTIONS, ONE_VIEW_MINUTES, PRESETS, SPLITS
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -34,8 +34,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     budget = p.add_mutually_exclusive_group()
     budget.add_argument("--minutes", type=positive_number, metavar="M",
                         help="time budget: the run ends after M minutes, set-up included, and every schedule "
-                             "stretches to it (default: the auto recipe's, 4 for an image matrix, 3 for one camera "
-                             "per time)")
+                             "stretches to it (default: the auto recipe's, "
+                             f"{MATRIX_MINUTES:g} for an image matrix, {ONE_VIEW_MINUTES:g} for one camera per time)")
     budget.add_argument("--iters", type=count, help="run this many iterations instead of a time budget (the "
                                                   "preset's schedules scale with it; runs are then reproducible)")
     p.add_argument("--resume", action="store_true", help="continue the run saved in --out (bit for bit)")
@@ -85,8 +85,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--motion", choices=MOTIONS,
                    help="how the Gaussians move: linear (native 4DGS) or quadratic (each also learns an acceleration, "
                         "so it can follow a curved path; exported where the format holds it) (default: the recipe's, "
-                        "quadratic for an image matrix, else linear; the named presets linear; a resumed run keeps its "
-                        "own)")
+                        "quadratic for more than one frame; the named presets linear; a resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")

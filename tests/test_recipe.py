@@ -16,7 +16,7 @@ from splatreel.train.config import MATRIX_MINUTES, ONE_VIEW_MINUTES, preset
 from splatreel.train.data import load_dataset
 from splatreel.train.points import find_point_cloud, read_point_cloud
 from splatreel.train.recipe import MATRIX_TEMPORAL_STD_FRAMES, auto_recipe, read_traits
-from splatreel.train.trainer import Trainer
+from splatreel.train.trainer import BudgetBar, Trainer
 
 from conftest import sample_dataset
 
@@ -232,6 +232,21 @@ def test_help_states_the_recipes_budgets_and_motion(capsys):
     said = " ".join(capsys.readouterr().out.split())
     assert "5 for an image matrix, 10 for one camera per time" in said
     assert "quadratic for more than one frame" in said
+
+
+def test_the_bar_shows_the_budget_less_the_seconds_spent():
+    import io
+
+    out = io.StringIO()
+    # a set-up of 12.6 s, then a first update that rounds the other way: tqdm's own estimate went negative here
+    bar = BudgetBar(total=300.0, initial=12.6, unit="s", desc="train", file=out, ncols=100)
+    bar.update(-0.3)
+    bar.refresh()
+    assert out.getvalue().endswith("12/300 s, 04:47 left")
+    bar.update(300.0 - bar.n)
+    bar.set_postfix(it=7)
+    assert out.getvalue().endswith("300/300 s, 00:00 left, it=7")
+    bar.close()
 
 
 def test_minutes_ends_on_time(matrix, tmp_path, capsys):

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from splatreel.cameras import DatasetView
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
@@ -43,6 +44,21 @@ def param_names(cfg: TrainConfig) -> tuple[str, ...]:
     if cfg.motion not in MOTIONS:
         raise SplatreelError(f"unknown motion {cfg.motion!r} (expected {' or '.join(MOTIONS)})")
     return Gaussians4D.TENSORS + (("accelerations",) if cfg.motion == "quadratic" else ())
+
+
+class BudgetBar(tqdm):
+    """A progress bar of the seconds of a time budget. The time left is the budget less the seconds spent, not
+    tqdm's estimate from the rate of progress: that one is meaningless before the first update (a resumed or slow
+    set-up showed a negative time left)."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s, {left} left{postfix}",
+                         **kwargs)
+
+    @property
+    def format_dict(self) -> dict:
+        d = super().format_dict
+        return {**d, "left": self.format_interval(max(0.0, d["total"] - d["n"]))}
 
 
 def state_path(out: Path) -> Path:
@@ -465,15 +481,12 @@ class Trainer:
 
     def run(self, stop_at: int | None = None) -> TrainResult:
         """Train until the recipe's end (its iterations, or its time budget) or iteration `stop_at`, then save."""
-        from tqdm import tqdm
-
         cfg = self.cfg
         start_time = time.perf_counter()
         budget = 60.0 * cfg.minutes if cfg.minutes else None
         if budget:  # a bar of seconds, so it shows the time left
-            bar = tqdm(total=round(budget), initial=min(round(self.elapsed()), round(budget)), unit="s",
-                       desc="train", disable=not self.progress, dynamic_ncols=True,
-                       bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s, {remaining} left{postfix}")
+            bar = BudgetBar(total=budget, initial=min(self.elapsed(), budget), unit="s", desc="train",
+                            disable=not self.progress, dynamic_ncols=True)
         else:
             bar = tqdm(total=cfg.iters, initial=self.step, unit="it", desc="train", disable=not self.progress,
                        dynamic_ncols=True)

@@ -12,11 +12,12 @@ import torch
 
 from splatreel.checkpoint import load_checkpoint
 from splatreel.cli import main
-from splatreel.train.config import MATRIX_MINUTES, ONE_VIEW_MINUTES, preset
+from splatreel.train.config import preset
 from splatreel.train.data import load_dataset
 from splatreel.train.points import find_point_cloud, read_point_cloud
-from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_TEMPORAL_STD_FRAMES,
-                                   SCALE_RATIO_WEIGHT, auto_recipe, read_traits)
+from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_MINUTES,
+                                   MATRIX_TEMPORAL_STD_FRAMES, ONE_VIEW_MINUTES, SCALE_RATIO_WEIGHT, auto_recipe,
+                                   read_traits)
 from splatreel.train.trainer import BudgetBar, Trainer
 
 from conftest import sample_dataset
@@ -233,7 +234,7 @@ def test_help_states_the_recipes_budgets_and_motion(capsys):
     said = " ".join(capsys.readouterr().out.split())
     assert "5 for an image matrix, 10 for one camera per time" in said
     assert "quadratic for more than one frame" in said
-    # the help writes out the recipe's values (importing the recipe would load numpy into --help): the same ones
+    # the help states the recipe's own values
     assert f"more than 10:1 anisotropic (default: the recipe's, {SCALE_RATIO_WEIGHT:g};" in said
     assert f"(default: the recipe's, {CLIP_DURATION:g}; the checkpoint keeps" in said
     assert f"(default: the recipe's, {FLOW_MOTION_AT:g} for an image matrix; 0 = never" in said

@@ -26,10 +26,6 @@ from dataclasses import dataclass, field
 MOTIONS = ("linear", "quadratic")
 #: How densification splits a large Gaussian (`DensifyConfig.split`).
 SPLITS = ("spacetime", "space")
-#: The auto recipe's time budgets in minutes (`TrainConfig.minutes`; `splatreel.train.recipe` chooses): an image
-#: matrix, and one camera per time.
-MATRIX_MINUTES = 5.0
-ONE_VIEW_MINUTES = 10.0
 
 
 @dataclass

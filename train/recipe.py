@@ -12,19 +12,24 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+from .config import TrainConfig, preset
 
-from splatreel.datasets import Dataset
+if TYPE_CHECKING:
+    from splatreel.datasets import Dataset
 
-from .config import MATRIX_MINUTES, ONE_VIEW_MINUTES, TrainConfig, preset
-from .points import find_point_cloud
+# numpy and the dataset readers are imported where they are used: `splatreel train --help` states this module's
+# constants, and stays quick without them
 
 #: Layouts whose views come from a video-to-multi-view generator rather than a renderer or a capture.
 GENERATED_LAYOUTS = ("efficient4d", "sv4d")
 #: Share of the image border that must be opaque (over the training images) for the alpha to hold an open floor
 #: or backdrop rather than a bounded object.
 OPEN_BORDER_SHARE = 0.25
+#: Time budgets in minutes (`TrainConfig.minutes`): an image matrix, and one camera per time.
+MATRIX_MINUTES = 5.0
+ONE_VIEW_MINUTES = 10.0
 #: With one camera per time, the initial temporal std-dev as a share of the clip's frames.
 TEMPORAL_STD_CLIP_SHARE = 0.1
 #: In an image matrix, the initial temporal std-dev in frame intervals (`TrainConfig.t_scale_init_frames`).
@@ -120,6 +125,8 @@ def opaque_coverage(ds: Dataset) -> tuple[float, float]:
     """(share of the outermost 2% of pixels, each side, that are opaque over the training images: 1 when an image
     has no alpha; mean number of opaque pixels per image: every pixel of an image without alpha). Opaque: alpha
     >= 0.5. One pass over the masks."""
+    import numpy as np
+
     ring_opaque = ring_total = 0
     counts, missing = [], False
     for v in ds.train:
@@ -137,6 +144,8 @@ def opaque_coverage(ds: Dataset) -> tuple[float, float]:
 
 
 def read_traits(ds: Dataset) -> DataTraits:
+    from .points import find_point_cloud
+
     w, h = ds.train[0].size
     border_opaque, foreground_pixels = opaque_coverage(ds)
     return DataTraits(images=len(ds.train), frames=len(ds.frame_times),

@@ -13,7 +13,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -31,7 +30,7 @@ from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
 from .config import MOTIONS, TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
-from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes, view_target
+from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes
 from .flow import inbetween_views
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)

@@ -25,7 +25,9 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
-    from splatreel.train.config import MATRIX_MINUTES, MOTIONS, ONE_VIEW_MINUTES, PRESETS, SPLITS
+    from splatreel.train.config import MOTIONS, PRESETS, SPLITS
+    from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_MINUTES,
+                                        ONE_VIEW_MINUTES, SCALE_RATIO_WEIGHT)
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -65,23 +67,24 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "one, else frustum for an open floor or backdrop, else ball)")
     p.add_argument("--init-points", metavar="FILE", help="point cloud (PLY or COLMAP points3D) to initialise on")
     p.add_argument("--scale-ratio-weight", type=non_negative_number, metavar="W",
-                   help="penalty on Gaussians more than 10:1 anisotropic (default: the recipe's, 0.1; the named "
-                        "presets 0)")
+                   help="penalty on Gaussians more than 10:1 anisotropic (default: the recipe's, "
+                        f"{SCALE_RATIO_WEIGHT:g}; the named presets 0)")
     p.add_argument("--t-scale-init", type=positive_number, metavar="FRAMES",
                    help="initial temporal std-dev of the Gaussians, in frame intervals (default: the recipe's)")
     p.add_argument("--clip-duration", type=positive_number, metavar="UNITS",
                    help="length of the clip on the trainer's own time axis: a longer clip lets the Gaussians move "
-                        "with less tilt in space-time (default: the recipe's, 5; the checkpoint keeps the dataset's "
-                        "times; a resumed run keeps its own)")
+                        f"with less tilt in space-time (default: the recipe's, {CLIP_DURATION:g}; the checkpoint keeps "
+                        "the dataset's times; a resumed run keeps its own)")
     p.add_argument("--flow-motion-at", type=fraction, metavar="F",
                    help="at this share of the run, set every Gaussian's velocity once from the optical flow between "
                         "each camera's consecutive frames, lifted to 3D by the model's depth (default: the recipe's, "
-                        "0.3 for an image matrix; 0 = never; needs cameras that film consecutive frames, else it is "
-                        "ignored with a note)")
+                        f"{FLOW_MOTION_AT:g} for an image matrix; 0 = never; needs cameras that film consecutive "
+                        "frames, else it is ignored with a note)")
     p.add_argument("--inbetween-share", type=fraction, metavar="F",
                    help="share of the images a step draws that are frames optical flow interpolates half-way "
-                        "between a camera's consecutive frames (default: the recipe's, 0.25 for an image matrix; "
-                        "0 = none; needs cameras that film consecutive frames, else it is ignored with a note)")
+                        "between a camera's consecutive frames (default: the recipe's, "
+                        f"{INBETWEEN_SHARE:g} for an image matrix; 0 = none; needs cameras that film consecutive "
+                        "frames, else it is ignored with a note)")
     p.add_argument("--motion", choices=MOTIONS,
                    help="how the Gaussians move: linear (native 4DGS) or quadratic (each also learns an acceleration, "
                         "so it can follow a curved path; exported where the format holds it) (default: the recipe's, "

@@ -23,7 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("torch", "moderngl", "numba", "cv2")
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["info", str(ROOT / "samples" / "spinner.safetensors")],
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["train", "--help"],
+                                  ["info", str(ROOT / "samples" / "spinner.safetensors")],
                                   ["info", str(ROOT / "samples" / "spinner.safetensors"), "--json"]])
 def test_help_version_and_info_import_no_torch(argv):
     code = ("import sys\nfrom splatreel.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"

@@ -3,6 +3,7 @@ score the held-out views beside two trivial baselines and the sample's exact mod
 
     python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,walker,floor] [--minutes M]
                           [--iters N] [--profile-steps K] [--device auto|cpu|cuda] [--datasets DIR]
+                          [--set FIELD=VALUE ...]
 
 Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the whole run, set-up included), `iters`,
 `n_gaussians`, `test_psnr`, `test_ssim`, `test_psnr_on_black` (the same model and test views, both composited on
@@ -32,6 +33,7 @@ that makes them is then not needed: a machine without a display driver can run d
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import json
 import math
@@ -159,7 +161,14 @@ def main() -> None:
     ap.add_argument("--datasets", type=Path, metavar="DIR",
                     help="keep the generated datasets in DIR/NAME and read them from there when present")
     ap.add_argument("--profile-steps", type=int, default=10, help="steps timed for the breakdown (0: skip)")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a field of the recipe's TrainConfig (a Python literal, e.g. inbetween_share=0); "
+                         "repeatable")
     args = ap.parse_args()
+    overrides = {}
+    for item in args.set:
+        field, _, value = item.partition("=")
+        overrides[field.strip()] = ast.literal_eval(value.strip())
 
     import torch
 
@@ -190,6 +199,8 @@ def main() -> None:
                 cfg = dataclasses.replace(cfg, minutes=args.minutes)
             if args.device:
                 cfg = dataclasses.replace(cfg, device=args.device)
+            if overrides:
+                cfg = dataclasses.replace(cfg, **overrides)
             t = time.perf_counter()
             tr = Trainer(ds, cfg, Path(tmp) / f"{name}.safetensors", progress=True)
             res = tr.run()
@@ -210,7 +221,7 @@ def main() -> None:
                          "median_image_psnr": round(base["median_image"], 3),
                          "needle_share": round(needle_share(tr), 4),
                          "sliced_needle_share": round(sliced_needle_share(tr), 4),
-                         "decisions": [d.line() for d in decisions],
+                         "decisions": [d.line() for d in decisions], "overrides": args.set,
                          "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
                          "generate_seconds": round(gen_s, 2), "device": str(tr.device), "reference_ms": ref_ms,

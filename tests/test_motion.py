@@ -10,7 +10,7 @@ import torch
 from splatreel.covariance import condition_on_time
 from splatreel.train.config import preset
 from splatreel.train.data import camera_videos, load_dataset
-from splatreel.train.motion import flow_velocities, with_velocities
+from splatreel.train.motion import flow_tracks, flow_velocities, with_velocities
 from splatreel.train.trainer import Trainer
 
 from conftest import sample_dataset
@@ -64,6 +64,26 @@ def test_flow_recovers_the_known_motion_of_the_sample(spinner):
     assert float(cos.median()) > 0.85  # 0.93 measured; 0.97 at 256 px
     ratio = float(estimate[moving].norm(dim=-1).median() / truth[moving].norm(dim=-1).median())
     assert 0.5 < ratio < 1.3  # 0.67 measured (the flow is smoothed into the still backdrop); 0.79 at 256 px
+
+
+def test_flow_tracks_follow_each_gaussian_to_the_neighbouring_frames(spinner):
+    from splatreel.samples.catalog import build_model
+
+    ds = load_dataset(spinner)
+    model = build_model("spinner", frames=16)
+    _, truth, _ = condition_on_time(model.covariance_4d().detach().double())
+    tracks = flow_tracks(model, ds, torch.ones(3))
+    step = ds.frame_times[1] - ds.frame_times[0]
+    moving = (truth.norm(dim=-1) > 0.2 * truth.norm(dim=-1).median()).numpy()
+    for points, seen, sign in ((tracks.next_points, tracks.next_seen, 1.0), (tracks.prev_points, tracks.prev_seen, -1.0)):
+        rows = seen & moving & (tracks.frame > 0) & (tracks.frame < 15)
+        assert rows.sum() > 0.3 * moving.sum()
+        moved = torch.from_numpy(sign * (points[rows] - tracks.position[rows]) / step)
+        assert float(torch.nn.functional.cosine_similarity(moved, truth[rows], dim=-1).median()) > 0.85
+    # the velocities are the tracks' average: a Gaussian seen both ways moves by about the mean of its two steps
+    both = tracks.next_seen & tracks.prev_seen & (tracks.count > 0)
+    assert both.sum() > 0
+    assert np.isfinite(tracks.velocity_sum[both]).all() and not tracks.prev_seen[tracks.frame == 0].any()
 
 
 def test_the_trainer_sets_the_velocities_once(spinner, tmp_path, monkeypatch):

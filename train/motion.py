@@ -101,19 +101,41 @@ def _lift(positions: np.ndarray, view, render: _Render, flow: np.ndarray, back: 
     return points, valid
 
 
-def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> tuple[torch.Tensor, int]:
-    """``[N, 3]`` velocity of every Gaussian of `model` (on `ds`'s times) from optical flow between the
-    consecutive frames of each camera (module doc), and how many Gaussians a camera saw on the surface (the rest
-    took their neighbours' velocity; all keep their own when no Gaussian was seen)."""
-    from scipy.spatial import cKDTree
+@dataclass
+class FlowTracks:
+    """Where the training videos' optical flow carries each Gaussian of a model from the training frame nearest its
+    temporal mean (float64): what `flow_velocities` averages, and what a motion fitted over several frames needs.
 
+    Attributes:
+        position: ``[N, 3]`` each Gaussian's sliced mean at its frame.
+        frame: ``[N]`` that frame's index into the dataset's frame times.
+        velocity_sum: ``[N, 3]`` sum of (point - position) / time step over every camera and direction that saw the
+            Gaussian on the surface (backward steps count with their sign); ``count``: ``[N]`` how many.
+        next_points, prev_points: ``[N, 3]`` the mean over cameras of where the flow brings it at the next / the
+            previous frame; ``next_seen``, ``prev_seen``: ``[N]`` whether any camera did.
+    """
+
+    position: np.ndarray
+    frame: np.ndarray
+    velocity_sum: np.ndarray
+    count: np.ndarray
+    next_points: np.ndarray
+    next_seen: np.ndarray
+    prev_points: np.ndarray
+    prev_seen: np.ndarray
+
+
+def flow_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> FlowTracks:
+    """Follow every Gaussian of `model` (on `ds`'s times) by the optical flow between the consecutive frames of each
+    camera (module doc) to the neighbouring frames."""
     model = model.detach()
     motion = _Motion.of(model, ds.frame_times)
     frame_of, position = motion.frame, motion.position.numpy()
     var_t = motion.var_t.to(model.t_means.dtype)
     rank = {t: k for k, t in enumerate(ds.frame_times)}
-    total = np.zeros((len(model), 3))
-    count = np.zeros(len(model))
+    n = len(model)
+    total, count = np.zeros((n, 3)), np.zeros(n)
+    ends = {1.0: (np.zeros((n, 3)), np.zeros(n)), -1.0: (np.zeros((n, 3)), np.zeros(n))}  # next, previous frame
     with torch.no_grad():
         for video in camera_videos(ds):
             renders: dict[int, _Render] = {}  # one video's depth and alpha at a time: memory stays small
@@ -129,12 +151,30 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
                     rows = np.nonzero(frame_of == rank[ds.train[src].time])[0]
                     points, valid = _lift(position[rows], ds.train[src], renders[src], f, b, ds.train[dst],
                                           renders[dst])
-                    rows, moved = rows[valid], points[valid] - position[rows[valid]]
-                    np.add.at(total, rows, sign * moved / dt)
+                    rows, points = rows[valid], points[valid]
+                    np.add.at(total, rows, sign * (points - position[rows]) / dt)
                     np.add.at(count, rows, 1.0)
+                    np.add.at(ends[sign][0], rows, points)
+                    np.add.at(ends[sign][1], rows, 1.0)
+    (next_sum, next_n), (prev_sum, prev_n) = ends[1.0], ends[-1.0]
+    mean = lambda s, c: np.where(c[:, None] > 0, s / np.maximum(c, 1.0)[:, None], position)  # noqa: E731
+    return FlowTracks(position, frame_of, total, count, mean(next_sum, next_n), next_n > 0, mean(prev_sum, prev_n),
+                      prev_n > 0)
+
+
+def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """``[N, 3]`` velocity of every Gaussian of `model` (on `ds`'s times) from optical flow between the
+    consecutive frames of each camera (module doc), and how many Gaussians a camera saw on the surface (the rest
+    took their neighbours' velocity; all keep their own when no Gaussian was seen)."""
+    from scipy.spatial import cKDTree
+
+    model = model.detach()
+    motion = _Motion.of(model, ds.frame_times)
+    tracks = flow_tracks(model, ds, background)
+    frame_of, position, count = tracks.frame, tracks.position, tracks.count
     seen = count > 0
     estimate = np.zeros((len(model), 3))
-    estimate[seen] = total[seen] / count[seen, None]
+    estimate[seen] = tracks.velocity_sum[seen] / count[seen, None]
     out = (motion.velocity + motion.acceleration * motion.dt[:, None]).numpy()  # the velocity at the frame
     out[seen] = estimate[seen]
     for k in np.unique(frame_of):  # the unseen take their estimated neighbours' mean, frame by frame

@@ -1,0 +1,281 @@
+"""What the trainer would score with another motion model, measured before it is built: oracles and prototypes that
+patch the trainer and run `bench/train.py` with it.
+
+    python bench/motion_experiments.py EXPERIMENT [bench/train.py options: --samples spinner --iters 1400 --json OUT]
+
+EXPERIMENT:
+  rigid  (oracle, `spinner` sample only) every Gaussian is carried from its temporal mean to time t by the box's exact
+         rigid motion (`splatreel.samples.objects.Spinner`): its mean and its conditional covariance turn and travel
+         with the box. The temporal means are frozen (learning rate 0): the carried position depends on them, so one
+         drifting under the opacity's gradient would turn its Gaussian off its surface (an earlier implementation that
+         let them drift scored 23.9 dB). No velocities from optical flow; splits in space only.
+  nodes  (prototype, any image matrix) motion shared across Gaussians by control nodes, as in SC-GS (Huang et al.,
+         CVPR 2024): at the flow step (`--flow-motion-at`) 512 nodes are drawn (farthest-point sampling) among the
+         Gaussians of the middle frame and tracked frame by frame, each by the rigid (Kabsch) fit of its 24 nearest
+         Gaussians' optical-flow tracks (`splatreel.train.motion.flow_tracks`); from then on every Gaussian is carried
+         from its (frozen) temporal mean by the blend of its 4 nearest nodes' rigid motions (linear blend skinning,
+         Gaussian weights of the distance), the node poses per frame are learned with the Gaussians, and splits are
+         in space only.
+
+Both replace the native conditional mean (and its quadratic term) by the carried one; the temporal opacity, the
+colour and the conditional covariance's shape stay native. The patches are this script's alone: nothing in the
+package imports it.
+"""
+
+from __future__ import annotations
+
+import math
+import runpy
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from splatreel import covariance as _covariance
+from splatreel import quaternion
+from splatreel.model import Gaussians4D, take_rows
+from splatreel.train import recipe as _recipe
+from splatreel.train import strategy as _strategy
+from splatreel.train import trainer as _trainer
+from splatreel.train.motion import flow_tracks
+
+NODES, NODE_NEIGHBOURS, FIT_NEIGHBOURS = 512, 4, 24
+LR_NODE_POSITIONS, LR_NODE_ROTATIONS = 1e-4, 5e-4  # positions times the scene extent
+_native_sliced = Gaussians4D._sliced
+_state: dict = {"carry": None}  # carry(model, t, rows, cov3) -> (means, cov3), once the motion is on
+
+
+def _carried_sliced(self, t, sh_degree_t, rows, means, cov3, velocity, marginal):
+    if _state["carry"] is not None:
+        means, cov3 = _state["carry"](self, t, rows, cov3)
+    return _native_sliced(self, t, sh_degree_t, rows, means, cov3, velocity, marginal)
+
+
+def _normalised_times(model: Gaussians4D, rows) -> torch.Tensor:
+    """Each Gaussian's temporal mean as a share of the clip (the trainer's axis and the dataset's agree on it)."""
+    t0, t1 = model.time_range
+    tm = model.t_means.detach() if rows is None else take_rows(model.t_means.detach(), rows)
+    return ((tm.double() - t0) / (t1 - t0)).clamp(0, 1)
+
+
+def _freeze_temporal_means(trainer) -> None:
+    for group in trainer.optimizer.param_groups:
+        if group["name"] == "t_means":
+            group["lr"] = 0.0
+
+
+def _split_in_space_only() -> None:
+    """Densification's splits draw children along the spatial axes only once the motion carries the Gaussians (a
+    4D split would move a child along the native velocity, which the carried motion ignores)."""
+    def rotation_4d(*args, **kwargs):
+        r4 = _covariance.rotation_4d(*args, **kwargs)
+        if _state["carry"] is None:
+            return r4
+        r4 = r4.clone()
+        r4[:, 3, :] = 0.0
+        r4[:, :3, 3] = 0.0
+        return r4
+    shim = types.SimpleNamespace(**{n: getattr(_covariance, n) for n in dir(_covariance) if not n.startswith("__")})
+    shim.rotation_4d = rotation_4d
+    _strategy.covariance = shim
+
+
+# --- rigid: the spinner's exact motion ------------------------------------------------------------------------------
+def _axis_rotations(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """``[G, 3, 3]`` rotations by `angle` ``[G]`` about the unit `axis` (Rodrigues)."""
+    k = torch.zeros(3, 3, dtype=angle.dtype)
+    k[0, 1], k[0, 2], k[1, 0], k[1, 2], k[2, 0], k[2, 1] = -axis[2], axis[1], axis[2], -axis[0], -axis[1], axis[0]
+    s, c = torch.sin(angle)[:, None, None], torch.cos(angle)[:, None, None]
+    return torch.eye(3, dtype=angle.dtype) + s * k + (1 - c) * (k @ k)
+
+
+def use_rigid_oracle() -> None:
+    from splatreel.samples.objects import Spinner
+
+    box = Spinner()
+    axis = torch.tensor(box.spin_axis, dtype=torch.float64)
+    axis = axis / axis.norm()
+
+    def centre(s: torch.Tensor) -> torch.Tensor:  # the box's centre at clip share s (Spinner's path)
+        ax, ay = box.arc
+        return torch.stack([-ax * torch.cos(math.pi * s), ay * torch.sin(math.pi * s) - 0.4 * ay,
+                            box.bob * torch.sin(2 * math.pi * s)], -1)
+
+    def carry(model, t, rows, cov3):
+        s_i = _normalised_times(model, rows)
+        t0, t1 = model.time_range
+        s = torch.full_like(s_i, (t - t0) / (t1 - t0)).clamp(0, 1)
+        rot = _axis_rotations(axis, 2 * math.pi * box.spin_turns * (s - s_i)).to(cov3.dtype)
+        mu = model.means if rows is None else take_rows(model.means, rows)
+        means = (rot @ (mu - centre(s_i).to(mu.dtype))[..., None])[..., 0] + centre(s).to(mu.dtype)
+        return means, rot @ cov3 @ rot.transpose(1, 2)
+
+    _state["carry"] = carry
+    original_auto = _recipe.auto_recipe
+
+    def auto_recipe(traits, *args, **kwargs):
+        import dataclasses
+
+        cfg, decisions = original_auto(traits, *args, **kwargs)
+        return dataclasses.replace(cfg, lr_t_means=0.0), decisions
+    _recipe.auto_recipe = auto_recipe
+    _trainer.Trainer.set_flow_motion = lambda self: setattr(self, "_flow_motion_done", True) or 0
+
+
+# --- nodes: flow-tracked control nodes ------------------------------------------------------------------------------
+def _kabsch(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rotations ``[M, 3, 3]`` with y - cy ≈ R (x - cx) for point sets ``[M, n, 3]``, and the centroids."""
+    cx, cy = x.mean(1, keepdim=True), y.mean(1, keepdim=True)
+    u, _, vt = torch.linalg.svd((x - cx).transpose(1, 2) @ (y - cy))
+    d = torch.sign(torch.linalg.det(vt.transpose(1, 2) @ u.transpose(1, 2)))
+    flip = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
+    return vt.transpose(1, 2) @ flip @ u.transpose(1, 2), cx[:, 0], cy[:, 0]
+
+
+class NodeGraph:
+    """Control nodes' poses at each key frame (positions ``[F, M, 3]``, rotations ``[F, M, 4]``), interpolated linearly
+    (normalised lerp of the quaternions) between keys, and each Gaussian's nearest nodes and blend weights."""
+
+    def __init__(self, key_s: torch.Tensor, positions: torch.Tensor, rotations: torch.Tensor, extent: float):
+        from scipy.spatial import cKDTree
+
+        self.key_s = key_s.double()
+        self.positions = torch.nn.Parameter(positions.float())
+        self.rotations = torch.nn.Parameter(rotations.float())
+        self.optimizer = torch.optim.Adam([{"params": [self.positions], "lr": LR_NODE_POSITIONS * extent},
+                                           {"params": [self.rotations], "lr": LR_NODE_ROTATIONS}], eps=1e-15)
+        middle = positions[len(positions) // 2].numpy()
+        self.sigma = float(np.median(cKDTree(middle).query(middle, k=2)[0][:, 1]))
+        self._skin: dict = {}
+
+    def pose(self, s: torch.Tensor, nodes: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Node positions and rotation matrices at clip shares `s` ``[G]`` of nodes ``[G, K]`` (``[G, K, 3]``,
+        ``[G, K, 3, 3]``), or of every node at one share (`nodes` None, `s` a float: ``[M, 3]``, ``[M, 3, 3]``)."""
+        s = torch.as_tensor(s, dtype=torch.float64).reshape(-1)
+        i = (torch.searchsorted(self.key_s, s.contiguous(), right=True) - 1).clamp(0, len(self.key_s) - 2)
+        w = ((s - self.key_s[i]) / (self.key_s[i + 1] - self.key_s[i])).clamp(0, 1).float()
+        if nodes is None:
+            i, j, w, idx = int(i[0]), int(i[0]) + 1, w[0], slice(None)
+        else:
+            i, j, w, idx = i[:, None], i[:, None] + 1, w[:, None, None], nodes
+        p = self.positions[i, idx] * (1 - w) + self.positions[j, idx] * w
+        qi, qj = self.rotations[i, idx], self.rotations[j, idx]
+        qj = torch.where((qi * qj).sum(-1, keepdim=True) < 0, -qj, qj)
+        return p, quaternion.to_rotmat(quaternion.normalize(qi * (1 - w) + qj * w))
+
+    def skin(self, model: Gaussians4D) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each Gaussian's `NODE_NEIGHBOURS` nearest nodes at its key frame ``[N, K]`` and their weights ``[N, K]``
+        (cached per model; `forget` after the nodes moved)."""
+        from scipy.spatial import cKDTree
+
+        key = (len(model), model.means.data_ptr(), float(model.t_means.detach().sum()))  # t_means are frozen
+        if key not in self._skin:
+            s = _normalised_times(model, None)
+            near = torch.argmin((s[:, None] - self.key_s[None]).abs(), 1).numpy()
+            x = model.means.detach().double().cpu().numpy()
+            nodes = np.zeros((len(x), NODE_NEIGHBOURS), dtype=np.int64)
+            dist = np.zeros((len(x), NODE_NEIGHBOURS))
+            keys = self.positions.detach().double().numpy()
+            for k in np.unique(near):
+                rows = np.nonzero(near == k)[0]
+                d, idx = cKDTree(keys[k]).query(x[rows], k=NODE_NEIGHBOURS)
+                nodes[rows], dist[rows] = idx.reshape(-1, NODE_NEIGHBOURS), d.reshape(-1, NODE_NEIGHBOURS)
+            w = np.exp(-0.5 * (dist / self.sigma) ** 2) + 1e-8
+            self._skin = {key: (torch.from_numpy(nodes), torch.from_numpy(w / w.sum(1, keepdims=True)).float())}
+        return self._skin[key]
+
+    def forget(self) -> None:
+        self._skin = {}
+
+    def carry(self, model: Gaussians4D, t: float, rows, cov3: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        nodes, weights = self.skin(model)
+        pick = (lambda x: x) if rows is None else (lambda x: take_rows(x, rows))  # noqa: E731
+        mu, nodes, weights = pick(model.means), pick(nodes), pick(weights)
+        p_anchor, r_anchor = self.pose(_normalised_times(model, rows), nodes)
+        local = (r_anchor.transpose(-1, -2) @ (mu[:, None, :] - p_anchor)[..., None])[..., 0]
+        t0, t1 = model.time_range
+        p_now, r_now = self.pose((t - t0) / (t1 - t0))
+        p_now, r_now = p_now[nodes], r_now[nodes]
+        means = (weights[..., None] * ((r_now @ local[..., None])[..., 0] + p_now)).sum(1)
+        rot = (weights[..., None, None] * (r_now @ r_anchor.transpose(-1, -2))).sum(1)
+        return means, rot @ cov3 @ rot.transpose(1, 2)
+
+
+def track_nodes(trainer) -> NodeGraph:
+    """Nodes drawn among the middle frame's Gaussians and tracked to every frame by the Kabsch fits of their nearest
+    Gaussians' flow tracks."""
+    from scipy.spatial import cKDTree
+
+    model = trainer.model().to("cpu")
+    tracks = flow_tracks(model, trainer.ds, trainer.bg.cpu())
+    frames = len(trainer.ds.frame_times)
+    middle = frames // 2
+    opaque = model.opacities.detach().numpy() > 0.1
+    points = tracks.position[(tracks.frame == middle) & opaque]
+    chosen = [0]  # farthest-point sampling
+    dist = np.linalg.norm(points - points[0], axis=1)
+    for _ in range(min(NODES, len(points)) - 1):
+        chosen.append(int(dist.argmax()))
+        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[-1]], axis=1))
+    n = len(chosen)
+    pos = torch.zeros(frames, n, 3, dtype=torch.float64)
+    rot = torch.zeros(frames, n, 3, 3, dtype=torch.float64)
+    pos[middle], rot[middle] = torch.from_numpy(points[chosen]), torch.eye(3, dtype=torch.float64)
+    for step, keys, ends, seen in ((1, range(middle, frames - 1), tracks.next_points, tracks.next_seen),
+                                   (-1, range(middle, 0, -1), tracks.prev_points, tracks.prev_seen)):
+        for k in keys:
+            rows = np.nonzero((tracks.frame == k) & seen)[0]
+            _, idx = cKDTree(tracks.position[rows]).query(pos[k].numpy(), k=FIT_NEIGHBOURS)
+            turn, cx, cy = _kabsch(torch.from_numpy(tracks.position[rows][idx]), torch.from_numpy(ends[rows][idx]))
+            pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
+            rot[k + step] = turn @ rot[k]
+    t0, t1 = trainer.time_range
+    key_s = (torch.tensor(trainer.ds.frame_times, dtype=torch.float64) - t0) / (t1 - t0)
+    quats = quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, n, 4)
+    return NodeGraph(key_s, pos, quats, trainer.extent)
+
+
+def use_nodes() -> None:
+    def set_flow_motion(self):
+        self._flow_motion_done = True
+        graph = track_nodes(self)
+        self.node_graph = graph
+        _state["carry"] = graph.carry
+        _freeze_temporal_means(self)
+        print(f"[nodes] {graph.positions.shape[1]} nodes tracked over {graph.positions.shape[0]} frames", flush=True)
+        return 1
+
+    native_step = _trainer.Trainer.train_step
+
+    def train_step(self):
+        out = native_step(self)
+        graph = getattr(self, "node_graph", None)
+        if graph is not None:
+            graph.optimizer.step()
+            graph.optimizer.zero_grad(set_to_none=True)
+            _freeze_temporal_means(self)  # the schedule sets the learning rates again each step
+            if self.step % 100 == 0:
+                graph.forget()
+        return out
+
+    _trainer.Trainer.set_flow_motion = set_flow_motion
+    _trainer.Trainer.train_step = train_step
+
+
+EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes": use_nodes}
+
+
+def main() -> None:
+    if len(sys.argv) < 2 or sys.argv[1] not in EXPERIMENTS:
+        sys.exit(f"usage: python bench/motion_experiments.py {{{','.join(EXPERIMENTS)}}} [bench/train.py options]")
+    EXPERIMENTS[sys.argv[1]]()
+    Gaussians4D._sliced = _carried_sliced
+    _split_in_space_only()
+    sys.argv = [str(Path(__file__).with_name("train.py"))] + sys.argv[2:]
+    runpy.run_path(sys.argv[0], run_name="__main__")
+
+
+if __name__ == "__main__":
+    main()

@@ -203,13 +203,15 @@ class NodeGraph:
         return means, rot @ cov3 @ rot.transpose(1, 2)
 
 
-def track_nodes(trainer) -> NodeGraph:
+def track_nodes(trainer) -> NodeGraph | None:
     """Nodes drawn among the middle frame's Gaussians and tracked to every frame by the Kabsch fits of their nearest
-    Gaussians' flow tracks."""
+    Gaussians' flow tracks; None when no camera films consecutive frames (one camera per time)."""
     from scipy.spatial import cKDTree
 
     model = trainer.model().to("cpu")
     tracks = flow_tracks(model, trainer.ds, trainer.bg.cpu())
+    if not tracks.count.any():
+        return None
     frames = len(trainer.ds.frame_times)
     middle = frames // 2
     opaque = model.opacities.detach().numpy() > 0.1
@@ -241,6 +243,9 @@ def use_nodes() -> None:
     def set_flow_motion(self):
         self._flow_motion_done = True
         graph = track_nodes(self)
+        if graph is None:
+            print("[nodes] no camera films consecutive frames: the native motion stays", flush=True)
+            return 0
         self.node_graph = graph
         _state["carry"] = graph.carry
         _freeze_temporal_means(self)

@@ -80,10 +80,14 @@ def test_flow_tracks_follow_each_gaussian_to_the_neighbouring_frames(spinner):
         assert rows.sum() > 0.3 * moving.sum()
         moved = torch.from_numpy(sign * (points[rows] - tracks.position[rows]) / step)
         assert float(torch.nn.functional.cosine_similarity(moved, truth[rows], dim=-1).median()) > 0.85
-    # the velocities are the tracks' average: a Gaussian seen both ways moves by about the mean of its two steps
+    # the velocities are the tracks' average: a Gaussian followed forward only moves at its step to the next frame
     both = tracks.next_seen & tracks.prev_seen & (tracks.count > 0)
     assert both.sum() > 0
     assert np.isfinite(tracks.velocity_sum[both]).all() and not tracks.prev_seen[tracks.frame == 0].any()
+    forward = tracks.next_seen & ~tracks.prev_seen
+    assert forward.sum() > 0
+    np.testing.assert_allclose(tracks.velocity_sum[forward] / tracks.count[forward, None],
+                               (tracks.next_points[forward] - tracks.position[forward]) / step, rtol=1e-6, atol=1e-6)
 
 
 def test_the_trainer_sets_the_velocities_once(spinner, tmp_path, monkeypatch):

@@ -129,7 +129,11 @@ def flow_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> Fl
     """Follow every Gaussian of `model` (on `ds`'s times) by the optical flow between the consecutive frames of each
     camera (module doc) to the neighbouring frames."""
     model = model.detach()
-    motion = _Motion.of(model, ds.frame_times)
+    return _tracks(model, _Motion.of(model, ds.frame_times), ds, background)
+
+
+def _tracks(model: Gaussians4D, motion: _Motion, ds: Dataset, background: torch.Tensor) -> FlowTracks:
+    """`flow_tracks` of a detached `model` whose `_Motion` is at hand."""
     frame_of, position = motion.frame, motion.position.numpy()
     var_t = motion.var_t.to(model.t_means.dtype)
     rank = {t: k for k, t in enumerate(ds.frame_times)}
@@ -170,7 +174,7 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -
 
     model = model.detach()
     motion = _Motion.of(model, ds.frame_times)
-    tracks = flow_tracks(model, ds, background)
+    tracks = _tracks(model, motion, ds, background)
     frame_of, position, count = tracks.frame, tracks.position, tracks.count
     seen = count > 0
     estimate = np.zeros((len(model), 3))

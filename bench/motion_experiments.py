@@ -36,7 +36,7 @@ import torch
 from splatreel import covariance as _covariance
 from splatreel import quaternion
 from splatreel.model import Gaussians4D, take_rows
-from splatreel.train import recipe as _recipe
+from splatreel.samples.geometry import farthest_point_subset
 from splatreel.train import strategy as _strategy
 from splatreel.train import trainer as _trainer
 from splatreel.train.motion import flow_tracks
@@ -60,15 +60,11 @@ def _normalised_times(model: Gaussians4D, rows) -> torch.Tensor:
     return ((tm.double() - t0) / (t1 - t0)).clamp(0, 1)
 
 
-def _freeze_temporal_means(trainer) -> None:
-    for group in trainer.optimizer.param_groups:
-        if group["name"] == "t_means":
-            group["lr"] = 0.0
-
-
 def _split_in_space_only() -> None:
-    """Densification's splits draw children along the spatial axes only once the motion carries the Gaussians (a
-    4D split would move a child along the native velocity, which the carried motion ignores)."""
+    """Densification's splits draw children along the spatial axes only, at the parent's temporal mean, once the
+    motion carries the Gaussians: a 4D split would move a child along the native velocity, which the carried motion
+    ignores. The recipe's ``split="space"`` is not enough: it still offsets a child's temporal mean along the time
+    components of the tilted 4D axes, and the carried position depends on the temporal mean."""
     def rotation_4d(*args, **kwargs):
         r4 = _covariance.rotation_4d(*args, **kwargs)
         if _state["carry"] is None:
@@ -83,45 +79,43 @@ def _split_in_space_only() -> None:
 
 
 # --- rigid: the spinner's exact motion ------------------------------------------------------------------------------
-def _axis_rotations(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """``[G, 3, 3]`` rotations by `angle` ``[G]`` about the unit `axis` (Rodrigues)."""
-    k = torch.zeros(3, 3, dtype=angle.dtype)
-    k[0, 1], k[0, 2], k[1, 0], k[1, 2], k[2, 0], k[2, 1] = -axis[2], axis[1], axis[2], -axis[0], -axis[1], axis[0]
-    s, c = torch.sin(angle)[:, None, None], torch.cos(angle)[:, None, None]
-    return torch.eye(3, dtype=angle.dtype) + s * k + (1 - c) * (k @ k)
-
-
-def use_rigid_oracle() -> None:
+def use_rigid_oracle() -> list[str]:
     from splatreel.samples.objects import Spinner
 
     box = Spinner()
     axis = torch.tensor(box.spin_axis, dtype=torch.float64)
     axis = axis / axis.norm()
+    # the box's centre, tabled from the sample's own path (linear between 2,001 times: ~1e-7 off)
+    table_s = np.linspace(0.0, 1.0, 2001)
+    table = torch.from_numpy(np.stack([box.center(float(s)) for s in table_s]))
 
-    def centre(s: torch.Tensor) -> torch.Tensor:  # the box's centre at clip share s (Spinner's path)
-        ax, ay = box.arc
-        return torch.stack([-ax * torch.cos(math.pi * s), ay * torch.sin(math.pi * s) - 0.4 * ay,
-                            box.bob * torch.sin(2 * math.pi * s)], -1)
+    def centre(s: torch.Tensor) -> torch.Tensor:
+        x = s.clamp(0, 1) * (len(table_s) - 1)
+        i = x.floor().long().clamp(max=len(table_s) - 2)
+        w = (x - i)[:, None]
+        return table[i] * (1 - w) + table[i + 1] * w
+
+    def turn(angle: torch.Tensor) -> torch.Tensor:  # [G] -> [G, 3, 3] about the spin axis
+        half = 0.5 * angle[:, None]
+        return quaternion.to_rotmat(torch.cat([torch.cos(half), torch.sin(half) * axis], -1))
+
+    # the box turns about its spin axis alone: rotation(s) rotation(s_i)^T is that turn (the tilt cancels)
+    check = torch.from_numpy(box.rotation(0.7) @ box.rotation(0.2).T)
+    assert torch.allclose(turn(torch.tensor([2 * math.pi * box.spin_turns * 0.5], dtype=torch.float64))[0], check,
+                          atol=1e-9)
 
     def carry(model, t, rows, cov3):
         s_i = _normalised_times(model, rows)
         t0, t1 = model.time_range
         s = torch.full_like(s_i, (t - t0) / (t1 - t0)).clamp(0, 1)
-        rot = _axis_rotations(axis, 2 * math.pi * box.spin_turns * (s - s_i)).to(cov3.dtype)
+        rot = turn(2 * math.pi * box.spin_turns * (s - s_i)).to(cov3.dtype)
         mu = model.means if rows is None else take_rows(model.means, rows)
         means = (rot @ (mu - centre(s_i).to(mu.dtype))[..., None])[..., 0] + centre(s).to(mu.dtype)
         return means, rot @ cov3 @ rot.transpose(1, 2)
 
     _state["carry"] = carry
-    original_auto = _recipe.auto_recipe
-
-    def auto_recipe(traits, *args, **kwargs):
-        import dataclasses
-
-        cfg, decisions = original_auto(traits, *args, **kwargs)
-        return dataclasses.replace(cfg, lr_t_means=0.0), decisions
-    _recipe.auto_recipe = auto_recipe
-    _trainer.Trainer.set_flow_motion = lambda self: setattr(self, "_flow_motion_done", True) or 0
+    # the temporal means frozen, no velocities from the flow: recipe fields, set through bench/train.py
+    return ["--set", "lr_t_means=0", "--set", "flow_motion_at=0"]
 
 
 # --- nodes: flow-tracked control nodes ------------------------------------------------------------------------------
@@ -216,11 +210,7 @@ def track_nodes(trainer) -> NodeGraph | None:
     middle = frames // 2
     opaque = model.opacities.detach().numpy() > 0.1
     points = tracks.position[(tracks.frame == middle) & opaque]
-    chosen = [0]  # farthest-point sampling
-    dist = np.linalg.norm(points - points[0], axis=1)
-    for _ in range(min(NODES, len(points)) - 1):
-        chosen.append(int(dist.argmax()))
-        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[-1]], axis=1))
+    chosen = farthest_point_subset(points, NODES, np.random.default_rng(0))
     n = len(chosen)
     pos = torch.zeros(frames, n, 3, dtype=torch.float64)
     rot = torch.zeros(frames, n, 3, 3, dtype=torch.float64)
@@ -239,7 +229,7 @@ def track_nodes(trainer) -> NodeGraph | None:
     return NodeGraph(key_s, pos, quats, trainer.extent)
 
 
-def use_nodes() -> None:
+def use_nodes() -> list[str]:
     def set_flow_motion(self):
         self._flow_motion_done = True
         graph = track_nodes(self)
@@ -248,7 +238,10 @@ def use_nodes() -> None:
             return 0
         self.node_graph = graph
         _state["carry"] = graph.carry
-        _freeze_temporal_means(self)
+        # the temporal means frozen: the carried position depends on them (the schedule sets only other rates)
+        for group in self.optimizer.param_groups:
+            if group["name"] == "t_means":
+                group["lr"] = 0.0
         print(f"[nodes] {graph.positions.shape[1]} nodes tracked over {graph.positions.shape[0]} frames", flush=True)
         return 1
 
@@ -260,13 +253,13 @@ def use_nodes() -> None:
         if graph is not None:
             graph.optimizer.step()
             graph.optimizer.zero_grad(set_to_none=True)
-            _freeze_temporal_means(self)  # the schedule sets the learning rates again each step
             if self.step % 100 == 0:
                 graph.forget()
         return out
 
     _trainer.Trainer.set_flow_motion = set_flow_motion
     _trainer.Trainer.train_step = train_step
+    return []
 
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes": use_nodes}
@@ -275,10 +268,10 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes": use_nodes}
 def main() -> None:
     if len(sys.argv) < 2 or sys.argv[1] not in EXPERIMENTS:
         sys.exit(f"usage: python bench/motion_experiments.py {{{','.join(EXPERIMENTS)}}} [bench/train.py options]")
-    EXPERIMENTS[sys.argv[1]]()
+    extra = EXPERIMENTS[sys.argv[1]]()
     Gaussians4D._sliced = _carried_sliced
     _split_in_space_only()
-    sys.argv = [str(Path(__file__).with_name("train.py"))] + sys.argv[2:]
+    sys.argv = [str(Path(__file__).with_name("train.py"))] + sys.argv[2:] + extra
     runpy.run_path(sys.argv[0], run_name="__main__")
 
 

@@ -150,6 +150,24 @@ def upper_bound(name: str, ds) -> float | None:
     return evaluate(model, ds.test, ds.background, progress=False)["psnr"]
 
 
+def config_overrides(items: list[str]) -> dict:
+    """``FIELD=VALUE`` strings as TrainConfig fields and values (a Python literal, else the text itself); ValueError
+    names the first that is not a field."""
+    from splatreel.train.config import TrainConfig
+
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    out = {}
+    for item in items:
+        field, sep, value = (x.strip() for x in item.partition("="))
+        if not sep or field not in fields:
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE with FIELD a TrainConfig field")
+        try:
+            out[field] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            out[field] = value
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", metavar="OUT", help="write results here")
@@ -165,10 +183,10 @@ def main() -> None:
                     help="override a field of the recipe's TrainConfig (a Python literal, e.g. inbetween_share=0); "
                          "repeatable")
     args = ap.parse_args()
-    overrides = {}
-    for item in args.set:
-        field, _, value = item.partition("=")
-        overrides[field.strip()] = ast.literal_eval(value.strip())
+    try:
+        overrides = config_overrides(args.set)
+    except ValueError as exc:
+        ap.error(str(exc))
 
     import torch
 

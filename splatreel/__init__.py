@@ -1,7 +1,8 @@
 """splatreel: a toolkit for 4D (dynamic 3D) Gaussian assets.
 
 Core types live here and are shared by the trainer, the viewer and the exporters:
-`Gaussians4D` / `KeyframedGaussians` (with ``slice(t) -> Gaussians3D``), `Camera`, and checkpoint I/O.
+`Gaussians4D` / `KeyframedGaussians` / `SkinnedGaussians` (with ``slice(t) -> Gaussians3D``), `Camera`, and
+checkpoint I/O.
 
 Names are imported on first use (PEP 562 module ``__getattr__``, https://peps.python.org/pep-0562/), so that
 ``splatreel --help``, ``--version`` and ``info`` start without importing torch.
@@ -19,6 +20,7 @@ _EXPORTS = {
     "errors": ("CheckpointError", "SplatreelError"),
     "formats": ("read_checkpoint",),
     "model": ("Gaussians3D", "Gaussians4D", "KeyframedGaussians", "Model"),
+    "skinned": ("SkinnedGaussians",),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 

@@ -3,10 +3,11 @@
 Layout
 ------
 * Tensors: the model's per-Gaussian tensors under their field names (`Gaussians4D.TENSORS` and those of its
-  `OPTIONAL_TENSORS` it holds, or `KeyframedGaussians.TENSORS`), float32 or float64, contiguous.
+  `OPTIONAL_TENSORS` it holds, `KeyframedGaussians.TENSORS`, or for skinned Gaussians the native ones and
+  `splatreel.skinned.NODE_TENSORS`), float32 or float64, contiguous.
 * Metadata: the safetensors header's ``__metadata__`` holds one key ``"splatreel"`` whose value is a JSON object::
 
-    {"format": "splatreel", "format_version": 1, "kind": "gaussians4d" | "keyframed",
+    {"format": "splatreel", "format_version": 1, "kind": "gaussians4d" | "keyframed" | "skinned",
      "model": {"sh_degree": .., "sh_degree_t": .., "time_range": [t0, t1], "rotation_convention": ..},
      "background": [r, g, b], "provenance": {...}, "training": {...},
      "cameras": {"cameras": [...], "views": [...]},   (optional)
@@ -40,8 +41,14 @@ from .checkpoint_file import (FORMAT_NAME, FORMAT_VERSION, METADATA_KEY, check_v
                               read_metadata, recorded_views)
 from .errors import CheckpointError, ModelError
 from .fileio import atomic_write_bytes
-from .model import MODEL_KINDS, Model
+from .model import Gaussians4D, KeyframedGaussians, Model
+from .skinned import SkinnedGaussians
 from .summary import model_summary
+
+
+#: The model kinds a checkpoint holds, by the name its metadata gives (``model.kind``).
+MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians,
+                                "skinned": SkinnedGaussians}
 
 
 @dataclass

@@ -443,10 +443,10 @@ def _lerp(x: Tensor, i: int, j: int, w: float) -> Tensor:
     return x[i] if w == 0.0 else x[i] + (x[j] - x[i]) * w
 
 
-#: Any model a checkpoint can hold; both have ``slice(t)``, ``centres(times)``, ``select(mask)``, ``anchors()``,
-#: ``time_range``, ``sh_degree`` and ``len()``.
+#: Any model a checkpoint can hold (and `splatreel.skinned.SkinnedGaussians`); each has ``slice(t)``,
+#: ``centres(times)``, ``select(mask)``, ``anchors()``, ``time_range``, ``sh_degree`` and ``len()``.
+#: `splatreel.checkpoint.MODEL_KINDS` names them.
 Model = Union[Gaussians4D, KeyframedGaussians]
-MODEL_KINDS: dict[str, type] = {"gaussians4d": Gaussians4D, "keyframed": KeyframedGaussians}
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """What every exporter shares: frame times, per-frame arrays from ``model.slice(t)``, errors and the registry.
 
-Exporters never look inside a model: they call ``model.slice(t)`` (any `Gaussians4D` or `KeyframedGaussians`) at
-the frame times and turn the resulting `Gaussians3D` into the numpy arrays of a `SplatFrame`. Conventions fixed
-here and used by every format:
+Exporters never look inside a model: they call ``model.slice(t)`` (any `Gaussians4D`, `KeyframedGaussians` or
+`SkinnedGaussians`) at the frame times and turn the resulting `Gaussians3D` into the numpy arrays of a
+`SplatFrame`. Conventions fixed here and used by every format:
 
 * Frame i of F is at model time ``t0 + i (t1 - t0) / (F - 1)`` (``t0`` alone when F = 1), where (t0, t1) is the
   model's ``time_range`` or the ``--start``/``--end`` override; a time outside the model's range is an error.
@@ -261,7 +261,7 @@ def linear_motion(model, format_name: str) -> LinearMotion:
 
     if model.kind != "gaussians4d":
         raise ExportError(f"{format_name} holds linearly moving Gaussians; a {model.kind} model has none (export its "
-                          "frames with export ply or export gltf)")
+                          "frames with export ply or export gltf, or the whole model with export web)")
     span = float(model.time_range[1] - model.time_range[0])
     with torch.no_grad():
         cov3, velocity, var_t = condition_on_time(model.covariance_4d().double())

@@ -6,9 +6,10 @@ whose Gaussians show the most opacity. Each vertex is then carried by the Gaussi
 time away from the reference (both ways): its `CARRIERS` nearest live Gaussians at the frame the step starts from,
 weighted by their opacity-weighted density at the vertex (as the vertex colours are), move it by the weighted mean
 of their own displacements over the step (for native 4D Gaussians the conditional means, which move linearly; for
-keyframed models the interpolated keys). Stepping matters: native 4D Gaussians live briefly, so the Gaussians that
-carry a vertex change along the way. Each step's displacement field is smoothed over the mesh (`SMOOTHING_STEPS`
-of Laplacian averaging) so that neighbouring vertices carried by different Gaussians do not crumple the surface.
+keyframed models the interpolated keys; for skinned models the means their control nodes carry). Stepping matters:
+native 4D Gaussians (skinned ones too) live briefly, so the Gaussians that carry a vertex change along the way. Each
+step's displacement field is smoothed over the mesh (`SMOOTHING_STEPS` of Laplacian averaging) so that neighbouring
+vertices carried by different Gaussians do not crumple the surface.
 
 Drift: at up to `DRIFT_FRAMES` frames the deformed surface is compared with the surface extracted at that frame
 (mean two-way nearest-vertex distance, as a share of the grid's diagonal). Above `DRIFT_WARNING`, or where the
@@ -107,8 +108,9 @@ def substeps(model, start, t_end: float, end) -> tuple[list, list]:
     """(starts, ends): the frame step from `start` to `end` (at `t_end`) cut into sub-steps no longer than half the
     median temporal std-dev of the Gaussians alive at `start`, so that each sub-step is carried by Gaussians that
     are still alive at its end (native 4D Gaussians are short-lived; their linear motion means nothing past their
-    life). Keyframed and static models: one step."""
-    t_scales = getattr(model, "t_scales", None)
+    life; a skinned model's Gaussians fade as native ones do, wherever their nodes carry them). Keyframed and static
+    models: one step."""
+    t_scales = getattr(model.gaussians if model.kind == "skinned" else model, "t_scales", None)
     live = start.opacities > 0
     if t_scales is None or not live.any():
         return [start], [end]

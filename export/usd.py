@@ -351,7 +351,7 @@ def build_usd_stage(model, times: Sequence[float], options: UsdOptions = UsdOpti
     """Author the whole animation on a new in-memory stage and return it (nothing touches disk).
 
     Args:
-        model: any model with ``slice(t)`` (Gaussians4D, KeyframedGaussians).
+        model: any model with ``slice(t)`` (Gaussians4D, KeyframedGaussians, SkinnedGaussians).
         times: ``[F]`` model times of the frames (`splatreel.export.frame_times`), uniformly spaced.
         options: `UsdOptions`.
     Returns:

@@ -15,7 +15,10 @@ data file):
   its peak; the colour is the SH of the kept degree with the time terms summed with cos(2 pi n (mu_t - t) / T)
   (`splatreel.sh.collapse_time`), + 0.5 clamped at 0;
 * keyframed: every key's means, rotations, scales, opacities and SH; the page interpolates between the two keys
-  around t as `KeyframedGaussians.slice` does (lerp, slerp along the shorter arc; held outside the keys).
+  around t as `KeyframedGaussians.slice` does (lerp, slerp along the shorter arc; held outside the keys);
+* skinned (`splatreel.skinned.SkinnedGaussians`, moved by control nodes; no closed form the page knows): baked to
+  keyframes (`splatreel.baking`) at its node key times and the mid-points between them, and played as keyframed
+  (the header's ``baked_from`` says ``skinned``).
 
 Projection as the trainer's rasterizer: EWA Jacobian at the clamped x/z, y/z, + EPS2D px^2, near-plane cull, alpha
 clamped at MAX_ALPHA and cut where it falls below ALPHA_THRESHOLD, inside the reference's tile rectangle. The page
@@ -116,9 +119,14 @@ def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
             sh = m.sh_coeffs.numpy()
         fields = {"kind": "gaussians4d", "count": n, "keys": 1, "key_times": [], "geom_texels": geom.shape[1],
                   "sh_degree": m.sh_degree, "sh_degree_t": m.sh_degree_t, "duration": float(m.duration)}
-    elif model.kind == "keyframed":
+    elif model.kind in ("keyframed", "skinned"):
+        m = model
+        if model.kind == "skinned":  # the page has no node skinning: its keys, arcs followed by the mid-points
+            from splatreel.baking import bake_keyframes, skinned_bake_times
+
+            m = bake_keyframes(model, skinned_bake_times(model))
         with torch.no_grad():
-            m = model.to(device="cpu", dtype=torch.float64)
+            m = m.to(device="cpu", dtype=torch.float64)
             f, n = m.num_frames, len(m)
             geom = np.zeros((f, n, 4, 4), np.float64)
             geom[:, :, 0, :3], geom[:, :, 0, 3] = m.means.numpy(), m.opacities.numpy()
@@ -129,8 +137,10 @@ def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
         t0, t1 = m.time_range
         fields = {"kind": "keyframed", "count": n, "keys": f, "key_times": m.times.tolist(), "geom_texels": 4,
                   "sh_degree": m.sh_degree, "sh_degree_t": 0, "duration": float(t1 - t0) or 1.0}
+        if model.kind != "keyframed":
+            fields["baked_from"] = model.kind
     else:
-        raise ExportError(f"export web plays native 4D and keyframed models, not a {model.kind} model")
+        raise ExportError(f"export web plays native 4D, keyframed and skinned models, not a {model.kind} model")
     if not (np.isfinite(geom).all() and np.isfinite(sh).all()):
         raise ExportError("the model has NaN or infinite values (bad covariances or temporal scales)")
     return geom, sh, fields

@@ -4,7 +4,8 @@
 stored in its metadata under ``"summary"``, so that ``info`` can print it without torch. Its keys: ``kind``,
 ``count``, ``time_range``, ``bounds_min``/``bounds_max`` (the visible means over 9 times, `model_bounds`),
 ``sh_degree``, ``sh_degree_t``, ``rotation_convention``, ``motion`` (native 4D models: ``linear``, or ``quadratic``
-with accelerations), ``dtype``, ``num_frames`` (keyframed models),
+with accelerations; skinned models: ``nodes``), ``dtype``, ``num_frames`` (keyframed models), ``num_nodes`` and
+``num_keys`` (skinned models: control nodes, and their key times),
 ``std_dev`` and ``opacity`` (median, 99th percentile; max for std-dev) and ``large`` (see `shape_stats`).
 """
 
@@ -18,7 +19,7 @@ LARGE_SHARE = 0.1
 
 def sizes_and_opacities(model) -> tuple[np.ndarray | None, np.ndarray | None]:
     """(largest std-dev ``[N]``, opacity ``[N]``) as float64 arrays: the opacity at its temporal peak for native 4D
-    models, at the middle key for keyframed ones."""
+    and skinned models, at the middle time for keyframed ones."""
     import torch
 
     if not len(model):
@@ -29,7 +30,8 @@ def sizes_and_opacities(model) -> tuple[np.ndarray | None, np.ndarray | None]:
             std = g.scales.double().max(-1).values.numpy()
         else:
             std = torch.linalg.eigvalsh(g.covariances.double()).clamp_min(0.0)[:, -1].sqrt().numpy()
-        logits = getattr(model, "opacity_logits", None)
+        native = model.gaussians if model.kind == "skinned" else model  # skinned: the native opacities it carries
+        logits = getattr(native, "opacity_logits", None)
         opacity = (torch.sigmoid(logits) if logits is not None else g.opacities).double().numpy()
     return std, opacity
 
@@ -68,4 +70,6 @@ def model_summary(model) -> dict:
         out["num_frames"] = int(model.num_frames)
     if model.kind == "gaussians4d":
         out["motion"] = "linear" if model.accelerations is None else "quadratic"
+    if model.kind == "skinned":
+        out.update(motion="nodes", num_nodes=int(model.num_nodes), num_keys=int(model.num_keys))
     return {**out, **shape_stats(std, opacity, float(np.linalg.norm(hi - lo)))}

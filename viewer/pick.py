@@ -7,7 +7,8 @@ viewer draws there, Gaussian by Gaussian: the weights alpha_i T_i sum to the pix
 to its colour.
 
 `inspect_gaussian` / `describe` list one Gaussian's attributes at a time t from the model itself (its `slice`),
-for the panel.
+for the panel; a skinned Gaussian's temporal rows come from its native 4D Gaussian (`SkinnedGaussians.gaussians`),
+plus the nodes that carry it.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import torch
 from splatreel.constants import ALPHA_THRESHOLD, MAX_ALPHA, TRANSMITTANCE_THRESHOLD
 from splatreel.covariance import condition_on_time, temporal_factor, temporal_marginal, visible_span
 from splatreel.model import Gaussians3D, Gaussians4D
+from splatreel.skinned import SkinnedGaussians
 
 
 @dataclass(frozen=True)
@@ -127,13 +129,14 @@ def inspect_gaussian(model, index: int, t: float, fade: str = "cut") -> tuple[li
     also gives the app the ellipsoid to draw. The opacity at t is the one drawn with the temporal `fade`
     (`splatreel.covariance.temporal_factor`)."""
     one = model.select(torch.tensor([int(index)]))
+    native = native_gaussians(one)
     with torch.no_grad():
         g = one.slice(float(t))
         opacity = float(g.opacities[0])
-        if isinstance(one, Gaussians4D):
-            _, _, var_t = condition_on_time(one.covariance_4d())
-            marginal = temporal_marginal(float(t), one.t_means, var_t)
-            opacity = float(one.opacities[0] * temporal_factor(marginal, fade)[0])
+        if native is not None:
+            _, _, var_t = condition_on_time(native.covariance_4d())
+            marginal = temporal_marginal(float(t), native.t_means, var_t)
+            opacity = float(native.opacities[0] * temporal_factor(marginal, fade)[0])
         drawn = bool(g.visible[0]) and opacity >= ALPHA_THRESHOLD
         rows = [("index", f"{int(index):,} of {len(model):,}"),
                 ("position", vector_text(g.means[0])),
@@ -141,22 +144,42 @@ def inspect_gaussian(model, index: int, t: float, fade: str = "cut") -> tuple[li
                 ("speed", f"{float(g.velocities[0].norm()):.4g}"),
                 ("std-devs", vector_text(torch.linalg.eigvalsh(g.covariances[0].double()).clamp_min(0).sqrt().flip(0))),
                 ("opacity at t", f"{opacity:.3f}" + ("" if drawn else "  (not drawn)"))]
-        if isinstance(one, Gaussians4D):
+        if native is not None:
             sd_t = math.sqrt(float(var_t[0]))
-            rows += [("peak opacity", f"{float(one.opacities[0]):.3f} at t = {float(one.t_means[0]):.4g}"),
+            rows += [("peak opacity", f"{float(native.opacities[0]):.3f} at t = {float(native.t_means[0]):.4g}"),
                      ("time std-dev", f"{sd_t:.4g}"),
                      ("drawn for", f"{float(visible_span(var_t)[0]):.4g} of {model.duration:.4g}")]
-        else:
+        if isinstance(one, SkinnedGaussians):
+            rows.append(("nodes", carrying_nodes_text(one)))
+        elif native is None:
             rows.append(("keyframes", f"{one.num_frames}"))
     return rows, g
 
 
+def native_gaussians(model) -> Gaussians4D | None:
+    """The native 4D Gaussians whose temporal mean and std-dev say when `model`'s Gaussians show: its own (native
+    4D), those the nodes carry (skinned), None for a keyframed model (its keys' opacities say it)."""
+    if isinstance(model, SkinnedGaussians):
+        return model.gaussians
+    return model if isinstance(model, Gaussians4D) else None
+
+
+def carrying_nodes_text(one: SkinnedGaussians) -> str:
+    """How many of a one-Gaussian skinned model's nodes carry it, and each one's blend weight, largest first:
+    '4 of 40: #12 (52%), #3 (31%), ...'."""
+    nodes, weights = one.skin
+    order = weights[0].argsort(descending=True).tolist()
+    shares = ", ".join(f"#{int(nodes[0, k])} ({float(weights[0, k]):.0%})" for k in order)
+    return f"{nodes.shape[1]} of {one.num_nodes}: {shares}"
+
+
 def peak_time(model, index: int) -> float:
-    """When Gaussian `index` shows most: a native Gaussian's temporal mean (clamped to the time range), a keyframed
-    one's most opaque key."""
+    """When Gaussian `index` shows most: a native or skinned Gaussian's temporal mean (clamped to the time range), a
+    keyframed one's most opaque key."""
     t0, t1 = model.time_range
-    if isinstance(model, Gaussians4D):
-        return min(max(float(model.t_means[int(index)]), t0), t1)
+    native = native_gaussians(model)
+    if native is not None:
+        return min(max(float(native.t_means[int(index)]), t0), t1)
     return float(model.times[int(model.opacities[:, int(index)].argmax())])
 
 

@@ -4,8 +4,8 @@ A native 4D model is converted **once**: everything that does not depend on t (t
 velocity of the conditional mean, the temporal variance; `splatreel.covariance.condition_on_time`) is computed here
 on the CPU, and the vertex shader only evaluates the t-dependent part each frame (mean moving in t, linearly or with
 the model's accelerations, temporal opacity factor and its cull, SH with the cosine time terms). A keyframed model
-has no closed form in t, so its slice at t (`KeyframedGaussians.slice`) is converted instead, once per displayed
-time.
+has no closed form in t, nor has a skinned one (`SkinnedGaussians`, moved by its control nodes), so its slice at t
+(`KeyframedGaussians.slice`, `SkinnedGaussians.slice`) is converted instead, once per displayed time.
 
 Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coefficients)::
 
@@ -32,6 +32,7 @@ from splatreel import sh as shlib
 from splatreel.covariance import condition_on_time
 from splatreel.errors import ModelError
 from splatreel.model import Gaussians3D, Gaussians4D, KeyframedGaussians
+from splatreel.skinned import SkinnedGaussians
 
 _COV_TRIU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -48,8 +49,8 @@ class SplatArrays:
         sh_degree_t: number of cosine time terms beyond the constant one (0..2).
         duration: T = t1 - t0, the period scale of the time terms.
         time_range: (t0, t1) of the source model.
-        static_in_time: True when the arrays are a keyframed slice valid at one time only (`time`).
-        time: the time a keyframed slice was taken at (None for native 4D arrays, valid at every t).
+        time: the time a slice (keyframed, skinned, 3D) was taken at, the only time its arrays are valid at (None for
+            native 4D arrays, valid at every t).
     """
 
     mean_t: np.ndarray
@@ -171,10 +172,15 @@ def from_gaussians3d(g: Gaussians3D, time: float, time_range: tuple[float, float
     return out
 
 
-def from_keyframed(model: KeyframedGaussians, t: float) -> SplatArrays:
-    """Arrays of a keyframed model's slice at `t` (re-made whenever the displayed time changes)."""
+def from_slice(model, t: float) -> SplatArrays:
+    """Arrays of a model's slice at `t`, for models without a closed form in t the shaders know (keyframed,
+    skinned): re-made whenever the displayed time changes."""
     with torch.no_grad():
         return from_gaussians3d(model.slice(float(t)), float(t), model.time_range)
+
+
+#: Times (evenly spread over the time range) at which `typical_speed` measures a skinned model's speeds.
+SPEED_TIMES = 9
 
 
 #: The "speed" render mode maps 0 .. this quantile of a model's speeds to its colour map (a few fast outliers do
@@ -185,31 +191,45 @@ SPEED_QUANTILE = 0.98
 def typical_speed(model, arrays: SplatArrays) -> float:
     """The top of the "speed" colour map for a whole model (not per frame, so that colours mean the same at
     every time): the `SPEED_QUANTILE` of its Gaussians' speeds. `arrays` are the model's (`to_arrays`): their speeds
-    for a native 4D model, valid at every time; a keyframed model's come from every key segment. 1 for a model
-    that does not move."""
+    for a native 4D model, valid at every time; a keyframed model's come from every key segment, a skinned model's
+    from the steps between `SPEED_TIMES` times (of the Gaussians drawn at either end). 1 for a model that does not
+    move."""
     if isinstance(model, KeyframedGaussians) and model.num_frames > 1:
         with torch.no_grad():
             means, times = model.means.detach().cpu().double(), model.times.detach().cpu().double()
             speeds = (torch.linalg.vector_norm(means.diff(dim=0), dim=-1) / times.diff()[:, None]).numpy()
+    elif isinstance(model, SkinnedGaussians) and model.duration > 0:
+        speeds = _sampled_speeds(model, np.linspace(*model.time_range, SPEED_TIMES))
     else:
         speeds = arrays.speed
     top = float(np.quantile(speeds, SPEED_QUANTILE)) if speeds.size else 0.0
     return top if np.isfinite(top) and top > 0 else 1.0
 
 
+def _sampled_speeds(model, times: np.ndarray) -> np.ndarray:
+    """Speeds (chord length over time) of `model`'s Gaussians over each step between consecutive `times`, of those
+    drawn at either end of the step (flattened, float64)."""
+    with torch.no_grad():
+        centres = [(m.detach().cpu().double(), v.cpu()) for m, v in model.centres(times.tolist())]
+    steps = [(torch.linalg.vector_norm(b - a, dim=-1) / (t1 - t0))[va | vb]
+             for (a, va), (b, vb), t0, t1 in zip(centres, centres[1:], times, times[1:])]
+    return torch.cat(steps).numpy() if steps else np.zeros(0)
+
+
 def needs_per_frame_upload(model) -> bool:
-    """True for models whose GPU data must be re-made when t changes (keyframed), False for native 4D."""
-    return isinstance(model, KeyframedGaussians)
+    """True for models whose GPU data must be re-made when t changes (keyframed, skinned), False for native 4D."""
+    return isinstance(model, (KeyframedGaussians, SkinnedGaussians))
 
 
 def to_arrays(model, t: float | None = None) -> SplatArrays:
-    """Arrays for any model: native 4D (valid for all t), keyframed (slice at `t`) or a `Gaussians3D`."""
+    """Arrays for any model: native 4D (valid for all t), keyframed or skinned (slice at `t`, default the start of
+    its time range) or a `Gaussians3D`."""
     if isinstance(model, Gaussians4D):
         return from_gaussians4d(model)
     t0 = float(model.time_range[0]) if hasattr(model, "time_range") else 0.0
-    if isinstance(model, KeyframedGaussians):
-        return from_keyframed(model, t0 if t is None else t)
+    if isinstance(model, (KeyframedGaussians, SkinnedGaussians)):
+        return from_slice(model, t0 if t is None else t)
     if isinstance(model, Gaussians3D):
         return from_gaussians3d(model, 0.0 if t is None else t)
-    raise ModelError(f"cannot render a {type(model).__name__}; expected Gaussians4D, KeyframedGaussians or "
-                     f"Gaussians3D")
+    raise ModelError(f"cannot render a {type(model).__name__}; expected Gaussians4D, KeyframedGaussians, "
+                     f"SkinnedGaussians or Gaussians3D")

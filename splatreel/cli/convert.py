@@ -76,7 +76,15 @@ def run(args: argparse.Namespace) -> int:
     save_checkpoint(out, model, background=ckpt.background, provenance=provenance, training=ckpt.training,
                     force=args.force, views=ckpt.views)  # a crop or a new dtype keeps the training cameras
     t0, t1 = model.time_range
-    frames = f", {model.num_frames} keyframes" if model.kind == "keyframed" else ""
-    print(f"wrote {out}: {model.kind}, {len(model):,} Gaussians, time {t0:g}..{t1:g}{frames}, "
+    print(f"wrote {out}: {model.kind}, {len(model):,} Gaussians, time {t0:g}..{t1:g}{_kind_details(model)}, "
           f"SH degree {model.sh_degree}")
     return 0
+
+
+def _kind_details(model) -> str:
+    """What the printed line adds for a model's kind: a keyframed model's keys, a skinned model's nodes."""
+    if model.kind == "keyframed":
+        return f", {model.num_frames} keyframes"
+    if model.kind == "skinned":
+        return f", {model.num_nodes:,} control nodes over {model.num_keys} key times"
+    return ""

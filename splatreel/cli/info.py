@@ -7,6 +7,9 @@ import json
 
 ORDER = 10
 HELP = "print what a checkpoint or model file holds (count, time range, bounds, SH degrees, size)"
+#: How the table words a summary's ``motion`` (others as they are: ``linear``)
+MOTION_TEXT = {"quadratic": "quadratic (each Gaussian has an acceleration)",
+               "nodes": "nodes (skinned: each Gaussian follows the blend of its nearest control nodes)"}
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -66,7 +69,7 @@ def _with_file_facts(path, facts: dict) -> dict:
            "background": list(facts["background"]), "size_bytes": size, "dtype": facts["dtype"],
            "format_version": facts["format_version"], "provenance": facts["provenance"],
            "training": facts["training"]}
-    for key in ("num_frames", "motion"):
+    for key in ("num_frames", "motion", "num_nodes", "num_keys"):
         if key in facts:
             out[key] = facts[key]
     out["training_views"] = len(views)
@@ -112,10 +115,11 @@ def run(args: argparse.Namespace) -> int:
     if info["rotation_convention"]:
         rows.append(("4D rotation", info["rotation_convention"]))
     if info.get("motion"):  # checkpoints from before accelerations have no entry (linear)
-        rows.append(("motion", {"quadratic": "quadratic (each Gaussian has an acceleration)"}.get(info["motion"],
-                                                                                               info["motion"])))
+        rows.append(("motion", MOTION_TEXT.get(info["motion"], info["motion"])))
     if "num_frames" in info:
         rows.append(("keyframes", str(info["num_frames"])))
+    if "num_nodes" in info:
+        rows.append(("control nodes", f"{info['num_nodes']:,}, posed at {info['num_keys']} key times"))
     rows += [("background", fmt(info["background"])), ("dtype", info["dtype"]),
              ("size on disk", _human(info["size_bytes"])), ("format version", str(info["format_version"]))]
     for k, v in info["provenance"].items():

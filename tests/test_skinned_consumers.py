@@ -1,0 +1,167 @@
+"""Every consumer of models with a skinned model (`SkinnedGaussians`): the viewer's arrays, re-made per displayed
+time; Inspect; baking into keyframes and the web player that plays them; USD; ``info`` and ``convert``."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+import torch
+
+from splatreel.baking import bake_keyframes, keys_and_midpoints, skinned_bake_times
+from splatreel.checkpoint import save_checkpoint
+from splatreel.cli import main
+from splatreel.covariance import condition_on_time, visible_span
+from splatreel.summary import model_summary
+from splatreel.viewer.pick import describe, peak_time, vector_text
+from splatreel.viewer.splats import needs_per_frame_upload, to_arrays, typical_speed
+
+from test_skinned import AXIS, CENTRE, spinning
+from test_web import geometry_texels
+
+KEYS = 9  # spinning()'s node key times: 0, 1/8, ..., 1
+
+
+@pytest.fixture(scope="module")
+def model():
+    return spinning(n=60, keys=KEYS)  # half a turn over [0, 1], float64
+
+
+@pytest.fixture(scope="module")
+def checkpoint(model, tmp_path_factory):
+    return save_checkpoint(tmp_path_factory.mktemp("skinned") / "spin.safetensors", model.to(dtype=torch.float32))
+
+
+def test_viewer_arrays_are_the_slice_at_the_time_shown(model):
+    assert needs_per_frame_upload(model)
+    a, b = to_arrays(model, 0.25), to_arrays(model, 0.75)
+    assert a.time == 0.25 and b.time == 0.75
+    for arrays, t in ((a, 0.25), (b, 0.75)):
+        g = model.slice(t)
+        np.testing.assert_allclose(arrays.mean_t[:, :3], g.means.numpy(), rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(arrays.opacity, np.where(g.visible, g.opacities, 0.0), atol=1e-6)
+        assert not arrays.motion.any()  # the shaders must not move a slice on their own
+    moved = np.linalg.norm(a.mean_t[:, :3] - b.mean_t[:, :3], axis=1)
+    radius = torch.linalg.cross(AXIS.expand_as(model.gaussians.means), model.gaussians.means - CENTRE).norm(dim=1)
+    # a quarter turn apart: each Gaussian moves by the chord sqrt(2) r of its circle about the axis
+    np.testing.assert_allclose(moved, math.sqrt(2) * radius.numpy(), rtol=1e-3, atol=1e-5)
+    # the speed colour map tops out near the fast end of pi r (half a turn per unit of time), not at 1
+    top = typical_speed(model, a)
+    assert 0.9 * math.pi * float(radius.quantile(0.9)) < top < 1.01 * math.pi * float(radius.max())
+
+
+def test_inspect_reads_the_native_gaussian_and_its_nodes(model):
+    i, t = 11, 0.4
+    rows = dict(describe(model, i, t))
+    native = model.gaussians
+    assert rows["position"] == vector_text(model.slice(t).means[i])
+    assert f"at t = {float(native.t_means[i]):.4g}" in rows["peak opacity"]
+    _, _, var_t = condition_on_time(native.covariance_4d())
+    assert rows["time std-dev"] == f"{math.sqrt(float(var_t[i])):.4g}"
+    assert rows["drawn for"].startswith(f"{float(visible_span(var_t)[i]):.4g}")
+    nodes, weights = model.skin
+    assert rows["nodes"].startswith(f"4 of {model.num_nodes}: #{int(nodes[i, weights[i].argmax()])} (")
+    assert "keyframes" not in rows
+    assert peak_time(model, i) == float(native.t_means[i])
+    late = model.select(torch.arange(len(model)))
+    late.gaussians.t_means[i] = 1.7  # a peak past the time range is clamped to it
+    assert peak_time(late, i) == 1.0
+
+
+def test_baking_reproduces_the_slice_at_its_keys_and_follows_the_turn_between_them(model):
+    times = skinned_bake_times(model)
+    assert len(times) == 2 * KEYS - 1 and times[1] == pytest.approx(0.5 / (KEYS - 1))
+    assert keys_and_midpoints([0.2, 0.6], (0.0, 1.0)) == [0.0, 0.2, 0.4, 0.6, 1.0]  # the range's ends added
+    baked = bake_keyframes(model, times)
+    assert baked.num_frames == len(times) and len(baked) == len(model)
+    for t in times:
+        g, b = model.slice(t), baked.slice(t)
+        torch.testing.assert_close(b.means, g.means)
+        torch.testing.assert_close(b.covariances, g.covariances, rtol=1e-6, atol=1e-9)
+        torch.testing.assert_close(b.opacities, torch.where(g.visible, g.opacities, torch.zeros_like(g.opacities)))
+        torch.testing.assert_close(b.sh, g.sh)
+    # between keys the slerped rotations turn with the nodes (an eigen-decomposition's axis signs are arbitrary: a
+    # flipped pair of axes would spin a Gaussian through half a turn between two keys)
+    for t in (0.3, 0.69):
+        g, b = model.slice(t), baked.slice(t)
+        scale = g.covariances.abs().amax((1, 2), keepdim=True)
+        assert float(((b.covariances - g.covariances).abs() / scale).max()) < 1e-2
+
+
+def test_export_web_plays_the_baked_keys(model, checkpoint, tmp_path, capsys):
+    out = tmp_path / "player"
+    assert main(["export", "web", str(checkpoint), "--out", str(out), "--quiet"]) == 0
+    header, key0 = geometry_texels((out / "splats.bin").read_bytes())  # the first key's rows come first
+    assert header["kind"] == "keyframed" and header["baked_from"] == "skinned"
+    assert header["keys"] == 2 * KEYS - 1 and len(header["key_times"]) == 2 * KEYS - 1
+    assert header["count"] == len(model)
+    np.testing.assert_allclose(key0[:, 0, :3], model.slice(0.0).means.numpy(), atol=1e-5)
+    assert "wrote" in capsys.readouterr().out
+    # formats of linearly moving Gaussians refuse it in one line
+    assert main(["export", "splatv", str(checkpoint), "--out", str(tmp_path / "m.splatv"), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "a skinned model has none" in err and len(err.splitlines()) == 1, err
+
+
+def test_usd_export_has_the_carried_means_at_each_sample(model, checkpoint, tmp_path):
+    from pxr import Usd, UsdVol
+
+    from splatreel.export.usd import PRIM_PATHS
+
+    out = tmp_path / "spin.usda"
+    assert main(["export", "usd", str(checkpoint), "--out", str(out), "--frame-count", "3", "--what", "splats",
+                 "--quiet"]) == 0
+    stage = Usd.Stage.Open(str(out))
+    splats = UsdVol.ParticleField3DGaussianSplat(stage.GetPrimAtPath(PRIM_PATHS["splats"]))
+    positions = splats.GetPositionsAttr()
+    assert positions.GetTimeSamples() == [0.0, 1.0, 2.0]
+    for code, t in enumerate((0.0, 0.5, 1.0)):
+        np.testing.assert_allclose(np.asarray(positions.Get(code)), model.slice(t).means.numpy(), atol=1e-4)
+
+
+def test_a_deforming_mesh_steps_as_its_gaussians_fade(model):
+    """Each frame step is cut so that the Gaussians carrying a vertex are still drawn at its end: a skinned model's
+    native Gaussians fade by their temporal std-devs (median about 0.37 here: a step of 0.5 takes 3 sub-steps)."""
+    from splatreel.export import iter_frames
+    from splatreel.export.deforming import substeps
+
+    start, end = iter_frames(model, [0.0, 0.5])
+    starts, ends = substeps(model, start, 0.5, end)
+    assert [s.time for s in starts] == pytest.approx([0.0, 1 / 6, 1 / 3])
+    assert ends[-1] is end
+
+
+def test_info_and_convert_name_the_kind_and_its_nodes(model, checkpoint, tmp_path, capsys):
+    summary = model_summary(model)
+    assert summary["kind"] == "skinned" and summary["motion"] == "nodes"
+    assert (summary["num_nodes"], summary["num_keys"]) == (model.num_nodes, KEYS)
+    # the opacity statistics are the native peaks, not the faded opacities at mid-clip
+    assert summary["opacity"]["median"] == pytest.approx(float(model.gaussians.opacities.median()), rel=0.05)
+    assert main(["info", str(checkpoint), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "skinned" and info["num_nodes"] == model.num_nodes and info["num_keys"] == KEYS
+    assert main(["info", str(checkpoint)]) == 0
+    table = capsys.readouterr().out
+    assert re.search(rf"kind\s+skinned\n", table)
+    assert re.search(rf"control nodes\s+{model.num_nodes}, posed at {KEYS} key times", table)
+    assert main(["convert", str(checkpoint), "--out", str(tmp_path / "again.safetensors")]) == 0
+    assert f"skinned, {len(model)} Gaussians" in capsys.readouterr().out
+
+
+def test_gl_draws_the_slice_at_each_time_as_the_rasterizer_does(model):
+    """The renderer re-slices a skinned model when the time changes (it is made at the start of the range)."""
+    from splatreel.cameras import orbit
+    from splatreel.skinned import SkinnedGaussians
+    from splatreel.viewer.synthetic import synthetic_model
+
+    from test_viewer_parity import MIN_PSNR, compare
+
+    small = SkinnedGaussians(synthetic_model(2000, seed=8, sh_degree=1, radius=0.6, scale=0.03), model.node_canonical,
+                             model.node_times, model.node_positions, model.node_rotations, node_sigma=0.4)
+    camera = orbit(15, 75, 2.5, fov_deg=45, width=96, height=96)
+    for t in (0.3, 0.8):
+        value, _ = compare(small, camera, t)
+        assert value >= MIN_PSNR, (t, value)

@@ -106,13 +106,21 @@ def skin_weights(points: Tensor, canonical: Tensor, sigma: float, k: int = NODES
                 (w / w.sum(1, keepdim=True)).to(points.dtype))
 
 
+def gather_nodes(x: Tensor, nodes: Tensor) -> Tensor:
+    """Rows `nodes` ``[N, K]`` of per-node `x` ``[M, ...]`` -> ``[N, K, ...]``. Through ``index_select``, whose
+    gradient is an ``index_add`` that sums in a fixed order: the gradient of ``x[nodes]`` is an accumulating
+    ``index_put``, whose threads add into a node in a varying order on the CPU, so two identical runs (or a run and
+    its resumption) would drift apart by an ulp per step."""
+    return x.index_select(0, nodes.reshape(-1)).reshape(nodes.shape + x.shape[1:])
+
+
 def carry(means: Tensor, cov3: Tensor | None, nodes: Tensor, weights: Tensor, canonical: Tensor,
           positions: Tensor, rotations: Tensor) -> tuple[Tensor, Tensor | None]:
     """Canonical means ``[N, 3]`` and covariances ``[N, 3, 3]`` (or None) carried by their nodes ``[N, K]`` with
     `weights` ``[N, K]``: nodes' canonical positions ``[M, 3]`` and poses at the time, ``[M, 3]``, ``[M, 3, 3]``."""
-    turn = rotations[nodes]  # [N, K, 3, 3]
-    offset = (means[:, None, :] - canonical[nodes])[..., None]  # [N, K, 3, 1]
-    moved = (weights[..., None] * ((turn @ offset)[..., 0] + positions[nodes])).sum(1)
+    turn, at = gather_nodes(rotations, nodes), gather_nodes(positions, nodes)  # [N, K, 3, 3], [N, K, 3]
+    offset = (means[:, None, :] - gather_nodes(canonical, nodes))[..., None]  # [N, K, 3, 1]
+    moved = (weights[..., None] * ((turn @ offset)[..., 0] + at)).sum(1)
     if cov3 is None:
         return moved, None
     blend = (weights[..., None, None] * turn).sum(1)  # [N, 3, 3]

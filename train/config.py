@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 #: How the Gaussians' means can move (`TrainConfig.motion`).
-MOTIONS = ("linear", "quadratic")
+MOTIONS = ("linear", "quadratic", "nodes")
 #: How densification splits a large Gaussian (`DensifyConfig.split`).
 SPLITS = ("spacetime", "space")
 
@@ -150,11 +150,20 @@ class TrainConfig:
     #: Share of the images a step draws that are frames interpolated by optical flow half-way between a camera's
     #: consecutive frames (`train.flow`); 0: none. Needs cameras that film consecutive frames.
     inbetween_share: float = 0.0
-    #: How the Gaussians' means move: 'linear' (native 4DGS) or 'quadratic' (each Gaussian also learns an
+    #: How the Gaussians' means move: 'linear' (native 4DGS), 'quadratic' (each Gaussian also learns an
     #: acceleration, `Gaussians4D.accelerations`, at `lr_accelerations` times the scene extent, per unit of the
-    #: trainer's time axis squared).
+    #: trainer's time axis squared) or 'nodes' (quadratic until the flow step, `flow_motion_at`, then carried by
+    #: `node_count` control nodes tracked by the optical flow: `splatreel.skinned`, `train.nodes`; needs cameras
+    #: that film consecutive frames, and stays quadratic without).
     motion: str = "linear"
     lr_accelerations: float = 1.8e-3
+    #: Control nodes of motion 'nodes', and the learning rates of their key poses: positions (times the scene
+    #: extent) and rotations (quaternion units).
+    node_count: int = 512
+    lr_node_positions: float = 1e-4
+    lr_node_rotations: float = 5e-4
+    #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
+    rigidity_weight: float = 0.0
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

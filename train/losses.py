@@ -141,3 +141,21 @@ def image_loss(rgb: Tensor, alpha: Tensor, target: Tensor, mask: Tensor | None, 
     if mask_weight:
         loss = loss + mask_weight * l1(alpha[rows, cols], mask[rows, cols], w_alpha)
     return share * loss
+
+
+def smoothness_loss(velocities: torch.Tensor, nbr: torch.Tensor, nbr_dist: torch.Tensor) -> torch.Tensor:
+    """Temporal smoothness for native 4D Gaussians: each Gaussian moves linearly, so the acceleration of the
+    surface comes from neighbouring Gaussians moving differently; penalise ||v_i - v_j|| over the k nearest
+    neighbours with weights exp(-100 d) (the official lambda_rigid form, standing in for 4DGen's acceleration
+    penalty)."""
+    w = torch.exp(-100.0 * nbr_dist)
+    diff = torch.linalg.vector_norm(velocities[:, None, :] - velocities[nbr], dim=-1)
+    return (w * diff).sum(-1).mean() / nbr.shape[1]
+
+
+def scale_ratio_loss(log_scales: torch.Tensor, max_ratio: float) -> torch.Tensor:
+    """PhysGaussian's anisotropy penalty (nerfstudio splatfacto `use_scale_regularization`):
+    mean(max(s_max / s_min, r) - r) over the spatial scales, so no Gaussian grows into a needle or a sheet thinner
+    than 1 / r of its width unless the images pay for it."""
+    ratio = torch.exp(log_scales.max(-1).values - log_scales.min(-1).values)
+    return (ratio.clamp_min(max_ratio) - max_ratio).mean()

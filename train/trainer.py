@@ -7,7 +7,6 @@ is a pure function elsewhere in this package. A run writes ``OUT`` (a splatreel 
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
 from splatreel.fileio import atomic_path
 from splatreel.model import Gaussians4D
+from splatreel.skinned import SkinnedGaussians
 from splatreel.rasterize import rasterize
 
 from . import strategy
@@ -32,9 +32,11 @@ from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes
 from .flow import inbetween_views
+from .nodes import Nodes, node_spacing, to_canonical, track_nodes
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
-from .losses import image_loss, mse, psnr_of_mse
+from .losses import image_loss, mse, psnr_of_mse, scale_ratio_loss, smoothness_loss
+from .schedule import active_sh, scheduled_lrs
 from .motion import flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
@@ -42,7 +44,7 @@ def param_names(cfg: TrainConfig) -> tuple[str, ...]:
     """The model tensors the trainer optimises: the native ones, and the accelerations with quadratic motion."""
     if cfg.motion not in MOTIONS:
         raise SplatreelError(f"unknown motion {cfg.motion!r} (expected {' or '.join(MOTIONS)})")
-    return Gaussians4D.TENSORS + (("accelerations",) if cfg.motion == "quadratic" else ())
+    return Gaussians4D.TENSORS + (("accelerations",) if cfg.motion in ("quadratic", "nodes") else ())
 
 
 class BudgetBar(tqdm):
@@ -71,47 +73,6 @@ def pick_device(name: str) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise SplatreelError("--device cuda requested but no CUDA device is available")
     return torch.device(name)
-
-
-def decayed_lr(step: float, iters: int, lr0: float, lr1: float) -> float:
-    """Exponential decay from lr0 to lr1 over `iters` steps (official `get_expon_lr_func`)."""
-    u = min(max(step / max(iters, 1), 0.0), 1.0)
-    return math.exp((1 - u) * math.log(lr0) + u * math.log(lr1))
-
-
-def scheduled_lrs(step: float, cfg: TrainConfig, extent: float) -> dict[str, float]:
-    """The learning rates that change over the run: the means' (scaled by the scene extent) and, when
-    `lr_quats_final` is set, the rotations'."""
-    out = {"means": decayed_lr(step, cfg.iters, cfg.lr_means * extent, cfg.lr_means_final * extent)}
-    if cfg.lr_quats_final:
-        out["quats_l"] = out["quats_r"] = decayed_lr(step, cfg.iters, cfg.lr_quats, cfg.lr_quats_final)
-    return out
-
-
-def active_sh(step: float, cfg: TrainConfig) -> tuple[int, int]:
-    """(spatial, time) SH degree in use at `step`: spatial first, then time, one more every sh_increase_every."""
-    if not cfg.sh_increase_every:
-        return cfg.sh_degree, cfg.sh_degree_t
-    k = int(step // cfg.sh_increase_every)
-    return min(k, cfg.sh_degree), min(max(0, k - cfg.sh_degree), cfg.sh_degree_t)
-
-
-def smoothness_loss(velocities: torch.Tensor, nbr: torch.Tensor, nbr_dist: torch.Tensor) -> torch.Tensor:
-    """Temporal smoothness for native 4D Gaussians: each Gaussian moves linearly, so the acceleration of the
-    surface comes from neighbouring Gaussians moving differently; penalise ||v_i - v_j|| over the k nearest
-    neighbours with weights exp(-100 d) (the official lambda_rigid form, standing in for 4DGen's acceleration
-    penalty)."""
-    w = torch.exp(-100.0 * nbr_dist)
-    diff = torch.linalg.vector_norm(velocities[:, None, :] - velocities[nbr], dim=-1)
-    return (w * diff).sum(-1).mean() / nbr.shape[1]
-
-
-def scale_ratio_loss(log_scales: torch.Tensor, max_ratio: float) -> torch.Tensor:
-    """PhysGaussian's anisotropy penalty (nerfstudio splatfacto `use_scale_regularization`):
-    mean(max(s_max / s_min, r) - r) over the spatial scales, so no Gaussian grows into a needle or a sheet thinner
-    than 1 / r of its width unless the images pay for it."""
-    ratio = torch.exp(log_scales.max(-1).values - log_scales.min(-1).values)
-    return (ratio.clamp_min(max_ratio) - max_ratio).mean()
 
 
 @dataclass
@@ -155,6 +116,7 @@ class Trainer:
         # per-pixel loss weights of each image of `_views` by (index, downscale factor): see `_loss_weights`
         self._pixel_weight: dict[tuple[int, int], torch.Tensor | None] = {}
         self._bytes: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor | None]] = {}  # see `_target`
+        self.nodes: Nodes | None = None  # motion 'nodes', from the flow step on
         if resume:
             self._resume()
         else:
@@ -229,7 +191,7 @@ class Trainer:
         if not self.out.exists() or not sp.exists():
             raise CheckpointError(f"cannot resume: {self.out if not self.out.exists() else sp} not found")
         ck = load_checkpoint(self.out)
-        if ck.model.kind != "gaussians4d":
+        if ck.model.kind not in ("gaussians4d", "skinned"):
             raise CheckpointError(f"{self.out}: cannot resume training of a {ck.model.kind} model")
         try:
             st = torch.load(sp, map_location="cpu", weights_only=True)
@@ -241,6 +203,8 @@ class Trainer:
         raw = st.get("params") or model_on_training_time(ck.model, self.axis).tensors()
         self._make_optimizer(raw)
         self.optimizer.load_state_dict(st["optimizer"])
+        if st.get("nodes"):
+            self.nodes = Nodes.from_state(st["nodes"], *self._node_lrs(), self.device)
         self.generator.set_state(st["generator"])
         self.step = int(st["step"])
         self.elapsed_before = float(st.get("elapsed", 0.0))
@@ -264,22 +228,39 @@ class Trainer:
         return out
 
     # --- one step -------------------------------------------------------------------------------------------
-    def model(self) -> Gaussians4D:
-        """The model being trained, on the trainer's own time axis (`self.ds`'s times; see `dataset_model`)."""
+    def model(self) -> Gaussians4D | SkinnedGaussians:
+        """The model being trained, on the trainer's own time axis (`self.ds`'s times; see `dataset_model`): native
+        4D Gaussians, or once control nodes carry them, skinned ones."""
+        native = self.native_model()
+        return native if self.nodes is None else self.nodes.skinned(native, self.step)
+
+    def native_model(self) -> Gaussians4D:
+        """The native 4D Gaussians being trained (canonical once nodes carry them: their accelerations unused)."""
         cfg = self.cfg
-        return Gaussians4D(**self.params, sh_degree=cfg.sh_degree, sh_degree_t=cfg.sh_degree_t,
+        params = self.params if self.nodes is None else {k: v for k, v in self.params.items() if k != "accelerations"}
+        return Gaussians4D(**params, sh_degree=cfg.sh_degree, sh_degree_t=cfg.sh_degree_t,
                            time_range=self.time_range, rotation_convention=cfg.rotation_convention)
 
-    def dataset_model(self, trained: dict[str, torch.Tensor] | None = None) -> Gaussians4D:
+    def _node_lrs(self) -> tuple[float, float]:
+        return self.cfg.lr_node_positions * self.extent, self.cfg.lr_node_rotations
+
+    def dataset_model(self, trained: dict[str, torch.Tensor] | None = None) -> Gaussians4D | SkinnedGaussians:
         """The model on the dataset's times (what the checkpoint holds; `model` is on the trainer's own axis), from
         `trained` (default: the current parameters)."""
         trained = trained or {k: v.detach().cpu() for k, v in self.params.items()}
+        if self.nodes is not None:  # carried by the nodes: the accelerations are unused
+            trained = {k: v for k, v in trained.items() if k != "accelerations"}
         model = model_on_dataset_time(Gaussians4D(**trained, sh_degree=self.cfg.sh_degree,
                                                   sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
                                                   rotation_convention=self.cfg.rotation_convention), self.axis)
         # Gaussians whose temporal mean drifted out of the clip draw nothing in it: the checkpoint leaves them out
         # (they stay in the resumable state, which resumes the run exactly)
-        return model.select(model.drawn_in_clip())
+        model = model.select(model.drawn_in_clip())
+        if self.nodes is None:
+            return model
+        n = self.nodes
+        return SkinnedGaussians(model, n.canonical.cpu(), torch.tensor(self.source.frame_times, dtype=torch.float32),
+                                n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
@@ -340,13 +321,14 @@ class Trainer:
         static = v < cfg.static_iters
         losses, errors = [], []  # tensors, read once per step: on a GPU each read waits for the device
         model = self.model()  # the parameters only change at the optimizer step, after the batch
+        native = model if self.nodes is None else model.gaussians
         with torch.no_grad():
-            var_t = model.covariance_4d()[:, 3, 3]
+            var_t = native.covariance_4d()[:, 3, 3]
         for _ in range(cfg.batch_size):
             i = self._pick(static)
             view = self._views(factor)[i]
             target, mask = self._target(i, factor)
-            shown = alive_at(view.time, model.t_means.detach(), var_t)
+            shown = alive_at(view.time, native.t_means.detach(), var_t)
             g = model.slice(view.time, sh_degree_t=deg_t, rows=shown)
             out = rasterize(g, view.camera, self.bg, sh_degree=deg)
             if cfg.densify.enabled:
@@ -359,7 +341,7 @@ class Trainer:
                                     view.camera.height, shown)
             losses.append(loss.detach())
             errors.append(mse(out.rgb, target))
-        regularisers = self.regularisers(model, static)
+        regularisers = self.regularisers(native, static)
         if regularisers is not None:
             regularisers.backward()
             losses.append(regularisers.detach() * cfg.batch_size)
@@ -370,6 +352,8 @@ class Trainer:
         self._maybe_densify()
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+        if self.nodes is not None:
+            self.nodes.step()
         if static:
             with torch.no_grad():
                 self.params["quats_r"].copy_(self.params["quats_l"])
@@ -388,10 +372,12 @@ class Trainer:
 
     def regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
         """The step's terms on the Gaussians themselves rather than on an image, once per step (they do not depend
-        on the image): motion smoothness between neighbours and the anisotropy penalty, over every Gaussian; None
-        when neither is on."""
+        on the image): motion smoothness between neighbours and the anisotropy penalty, over every Gaussian, and the
+        control nodes' rigidity; None when none is on."""
         cfg, terms = self.cfg, []
-        if cfg.smooth_weight and not static:
+        if self.nodes is not None and cfg.rigidity_weight:
+            terms.append(cfg.rigidity_weight * self.nodes.rigidity())
+        if cfg.smooth_weight and not static and self.nodes is None:  # nodes carry the Gaussians: no velocities
             if self._nbr is None or self.step % 100 == 0:
                 self._nbr = knn(self.params["means"].detach(), k=8)
             velocities = condition_on_time(model.covariance_4d())[1]
@@ -405,15 +391,32 @@ class Trainer:
         return bool(at) and vstep >= at * self.cfg.iters
 
     def set_flow_motion(self) -> int:
-        """Set every Gaussian's velocity from the optical flow of the training videos (`motion`), once; returns how
-        many Gaussians a camera saw on the surface (0: the data has no videos, nothing changed)."""
+        """Set every Gaussian's velocity from the optical flow of the training videos (`motion`), or with motion
+        'nodes' the control nodes that carry them from now on (`nodes`), once; returns how many Gaussians a camera
+        saw on the surface, or how many nodes were tracked (0: the data has no videos, nothing changed)."""
         self._flow_motion_done = True
         model = self.model().to("cpu")
+        if self.cfg.motion == "nodes":
+            return self._start_nodes(model)
         velocity, seen = flow_velocities(model, self.ds, self.bg.cpu())
         if seen:
             new = with_velocities(model, velocity, self.ds.frame_times)
             strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in new.items()})
         return seen
+
+    def _start_nodes(self, model: Gaussians4D) -> int:
+        """Track the control nodes and move the Gaussians to their canonical frame (`nodes`); 0 when the data has no
+        videos to track them in (the motion stays native)."""
+        tracked = track_nodes(model, self.ds, self.bg, self.cfg.node_count, self.cfg.seed)
+        if tracked is None:
+            return 0
+        key_times = torch.tensor(self.ds.frame_times, dtype=torch.float64)
+        sigma = node_spacing(tracked.canonical)
+        canonical = to_canonical(model, key_times, tracked, sigma)
+        strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in canonical.items()})
+        self.nodes = Nodes(key_times, tracked.canonical, tracked.positions, tracked.rotations, sigma,
+                           *self._node_lrs(), self.device)
+        return len(tracked.canonical)
 
     def elapsed(self) -> float:
         """Seconds this run has spent, across resumes."""
@@ -473,7 +476,7 @@ class Trainer:
         state = {"step": self.step, "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
                  "elapsed": self.elapsed(), "n_initial": self.n_initial,
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()},
-                 "params": trained}
+                 "params": trained, "nodes": None if self.nodes is None else self.nodes.state_dict()}
         with atomic_path(state_path(self.out), force=True) as tmp:
             torch.save(state, tmp)
         return len(model)

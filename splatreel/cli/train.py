@@ -86,9 +86,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         f"{INBETWEEN_SHARE:g} for an image matrix; 0 = none; needs cameras that film consecutive "
                         "frames, else it is ignored with a note)")
     p.add_argument("--motion", choices=MOTIONS,
-                   help="how the Gaussians move: linear (native 4DGS) or quadratic (each also learns an acceleration, "
-                        "so it can follow a curved path; exported where the format holds it) (default: the recipe's, "
-                        "quadratic for more than one frame; the named presets linear; a resumed run keeps its own)")
+                   help="how the Gaussians move: linear (native 4DGS), quadratic (each also learns an acceleration, "
+                        "so it can follow a curved path; exported where the format holds it) or nodes (quadratic "
+                        "until the flow step, then carried by control nodes tracked by the optical flow, so one "
+                        "Gaussian follows its part through every time; needs cameras that film consecutive frames; "
+                        "a skinned checkpoint) (default: the recipe's, quadratic for more than one frame; the named "
+                        "presets linear; a resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")

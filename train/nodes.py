@@ -1,0 +1,209 @@
+"""Control nodes for skinned Gaussians (`TrainConfig.motion` 'nodes'): found by tracking the optical flow, then learned
+with the Gaussians.
+
+Why: a native Gaussian moves on a straight line, so a turning part is drawn by a relay of Gaussians, each alive for
+about a frame, and the times between frames show the hand-over. Motion shared by many Gaussians (SC-GS, Huang et al.
+CVPR 2024) lets one Gaussian follow its part through every time it shows at (`splatreel.skinned`). The nodes start
+from what the images show:
+
+* at the flow step (`TrainConfig.flow_motion_at`), once the geometry of each frame is fitted, `node_count` nodes are
+  drawn by farthest-point sampling among the opaque Gaussians of the middle frame (their positions there are the
+  canonical frame);
+* each node is tracked frame by frame, forwards and backwards from the middle: it moves by the rigid (Kabsch) fit of
+  its `FIT_NEIGHBOURS` nearest Gaussians' optical-flow tracks (`train.motion.flow_tracks`) to the next frame;
+* every Gaussian is carried once from its own frame to the canonical frame (its mean and its conditional covariance)
+  by the inverse blend of its nearest nodes there, and loses its native velocity;
+* from then on the node poses at every key frame are parameters, with their own Adam, and an as-rigid-as-possible
+  term (SC-GS's ARAP) keeps each node's offsets to its `RIGID_NEIGHBOURS` canonical neighbours turning with it.
+
+A dataset where no camera films consecutive frames (one camera per time) has no tracks: the motion stays native.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from splatreel import quaternion
+from splatreel.covariance import condition_on_time, covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.datasets import Dataset
+from splatreel.model import Gaussians4D
+from splatreel.pointsets import farthest_point_subset
+from splatreel.skinned import SkinnedGaussians, node_poses, skin_weights
+
+from .motion import flow_tracks
+
+#: A node moves by the rigid fit of this many nearest Gaussians' tracks.
+FIT_NEIGHBOURS = 128
+#: The as-rigid-as-possible term keeps each node's offsets to this many canonical neighbours.
+RIGID_NEIGHBOURS = 8
+#: Nodes are drawn among the Gaussians at least this opaque.
+OPAQUE = 0.1
+#: Skin weights are recomputed every this many steps (the canonical means move) and after densification.
+SKIN_EVERY = 100
+
+
+def kabsch(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rotations ``[M, 3, 3]`` with y - cy ≈ R (x - cx) for point sets ``[M, n, 3]``, and the centroids ``[M, 3]``
+    (least squares, Kabsch 1976)."""
+    cx, cy = x.mean(1, keepdim=True), y.mean(1, keepdim=True)
+    u, _, vt = torch.linalg.svd((x - cx).transpose(1, 2) @ (y - cy))
+    d = torch.sign(torch.linalg.det(vt.transpose(1, 2) @ u.transpose(1, 2)))
+    flip = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
+    return vt.transpose(1, 2) @ flip @ u.transpose(1, 2), cx[:, 0], cy[:, 0]
+
+
+def nearest(points: torch.Tensor, queries: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Distances and indices ``[Q, k]`` of each query's `k` nearest `points`."""
+    return torch.cdist(queries, points).topk(min(k, len(points)), dim=1, largest=False)
+
+
+def node_spacing(canonical: torch.Tensor) -> float:
+    """The median distance from a node to its nearest other node: the blend weights' std-dev."""
+    if len(canonical) < 2:
+        return 1.0
+    d, _ = nearest(canonical, canonical, 2)
+    return float(d[:, 1].median().clamp_min(1e-6))
+
+
+@dataclass
+class TrackedNodes:
+    """Nodes tracked through the frames: canonical positions ``[M, 3]`` (at frame `middle`), positions
+    ``[F, M, 3]`` and rotations from the canonical frame ``[F, M, 4]`` at each frame (float64)."""
+
+    canonical: torch.Tensor
+    positions: torch.Tensor
+    rotations: torch.Tensor
+    middle: int
+
+
+def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count: int,
+                seed: int = 0) -> TrackedNodes | None:
+    """`count` nodes among the middle frame's opaque Gaussians of `model` (on `ds`'s times), tracked to every frame
+    (module doc); None when no camera films consecutive frames."""
+    model = model.detach().to("cpu")
+    tracks = flow_tracks(model, ds, background.cpu())
+    frames = len(ds.frame_times)
+    if not tracks.count.any() or frames < 2:
+        return None
+    middle = frames // 2
+    opaque = model.opacities.numpy() > OPAQUE
+    points = tracks.position[(tracks.frame == middle) & opaque]
+    if len(points) < 4:
+        return None
+    chosen = farthest_point_subset(points, count, np.random.default_rng(seed))
+    m = len(chosen)
+    pos = torch.zeros(frames, m, 3, dtype=torch.float64)
+    rot = torch.zeros(frames, m, 3, 3, dtype=torch.float64)
+    pos[middle], rot[middle] = torch.from_numpy(points[chosen]), torch.eye(3, dtype=torch.float64)
+    for step, keys, ends, seen in ((1, range(middle, frames - 1), tracks.next_points, tracks.next_seen),
+                                   (-1, range(middle, 0, -1), tracks.prev_points, tracks.prev_seen)):
+        for k in keys:
+            rows = np.nonzero((tracks.frame == k) & seen)[0]
+            if len(rows) < 3:  # nothing seen moving on: the nodes hold their pose
+                pos[k + step], rot[k + step] = pos[k], rot[k]
+                continue
+            start = torch.from_numpy(tracks.position[rows])
+            _, idx = nearest(start, pos[k], FIT_NEIGHBOURS)
+            turn, cx, cy = kabsch(start[idx], torch.from_numpy(ends[rows])[idx])
+            pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
+            rot[k + step] = turn @ rot[k]
+    return TrackedNodes(pos[middle].clone(), pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4),
+                        middle)
+
+
+def to_canonical(model: Gaussians4D, key_times: torch.Tensor, nodes: TrackedNodes,
+                 sigma: float) -> dict[str, torch.Tensor]:
+    """Each Gaussian carried from its temporal mean to the canonical frame by the inverse blend of its nearest nodes
+    at the key nearest that time: its new mean and 4D shape (``means``, ``log_scales``, ``log_t_scales``,
+    ``quats_l``, ``quats_r``). The shape keeps the conditional covariance (turned back) and the temporal variance,
+    without the native velocity: the nodes move the Gaussian now, and a 4D axis tilted in time would still place a
+    split's children along a motion that no longer exists."""
+    with torch.no_grad():
+        g = model.detach().to("cpu", torch.float64)
+        near = torch.argmin((g.t_means[:, None] - key_times.double()[None]).abs(), 1)
+        means, turns = torch.empty_like(g.means), torch.empty(len(g), 3, 3, dtype=torch.float64)
+        for k in near.unique().tolist():
+            rows = (near == k).nonzero()[:, 0]
+            idx, w = skin_weights(g.means[rows], nodes.positions[k], sigma)
+            r = quaternion.to_rotmat(quaternion.normalize(nodes.rotations[k]))[idx]  # [n, K, 3, 3]
+            local = (r.transpose(-1, -2) @ (g.means[rows, None, :] - nodes.positions[k][idx])[..., None])[..., 0]
+            means[rows] = (w[..., None] * (local + nodes.canonical[idx])).sum(1)
+            q = nodes.rotations[k][idx]
+            q = torch.where((q * q[:, :1]).sum(-1, keepdim=True) < 0, -q, q)  # one hemisphere before blending
+            turns[rows] = quaternion.to_rotmat(quaternion.normalize((w[..., None] * q).sum(1)))
+        cov3, _, var_t = condition_on_time(g.covariance_4d())
+        cov3 = turns.transpose(1, 2) @ cov3 @ turns
+        scales, t_scales, q_l, q_r = decompose_covariance_4d(
+            covariance_4d_from_motion(cov3, torch.zeros_like(means), var_t), g.rotation_convention)
+    return {"means": means, "log_scales": scales.clamp_min(1e-12).log(), "log_t_scales": t_scales.clamp_min(1e-12).log(),
+            "quats_l": q_l, "quats_r": q_r}
+
+
+def rigidity(canonical: torch.Tensor, positions: torch.Tensor, rotations: torch.Tensor, pairs: torch.Tensor,
+             pair_weights: torch.Tensor, sigma: float) -> torch.Tensor:
+    """As-rigid-as-possible: the weighted mean over keys and neighbour pairs ``[M, n]`` of the squared difference
+    between a node's offset to its neighbour at the key and its canonical offset turned by the node's rotation, in
+    node spacings."""
+    offsets = canonical[pairs] - canonical[:, None, :]  # [M, n, 3]
+    turn = quaternion.to_rotmat(quaternion.normalize(rotations))  # [F, M, 3, 3]
+    turned = (turn[:, :, None] @ offsets[None, ..., None])[..., 0]  # [F, M, n, 3]
+    moved = positions[:, pairs] - positions[:, :, None, :]
+    return (pair_weights * ((moved - turned) ** 2).sum(-1)).mean() / sigma ** 2
+
+
+class Nodes:
+    """The nodes of a run, learned: key times ``[F]`` (the trainer's axis), canonical positions, key poses as
+    parameters with their own Adam, and the skin of the current Gaussians."""
+
+    def __init__(self, key_times: torch.Tensor, canonical: torch.Tensor, positions: torch.Tensor,
+                 rotations: torch.Tensor, sigma: float, lr_positions: float, lr_rotations: float, device) -> None:
+        self.key_times = key_times.to(device, torch.float32)
+        self.canonical = canonical.to(device, torch.float32)
+        self.sigma = float(sigma)
+        self.positions = torch.nn.Parameter(positions.to(device, torch.float32).contiguous())
+        self.rotations = torch.nn.Parameter(rotations.to(device, torch.float32).contiguous())
+        self.optimizer = torch.optim.Adam([{"params": [self.positions], "lr": lr_positions},
+                                           {"params": [self.rotations], "lr": lr_rotations}], eps=1e-15)
+        d, j = nearest(self.canonical, self.canonical, RIGID_NEIGHBOURS + 1)
+        self.pairs, self.pair_weights = j[:, 1:], torch.exp(-0.5 * (d[:, 1:] / self.sigma) ** 2)
+        self._skin: tuple | None = None
+
+    def skinned(self, gaussians: Gaussians4D, step: int) -> SkinnedGaussians:
+        """`gaussians` (canonical) carried by these nodes, their skin recomputed when the count changed or every
+        `SKIN_EVERY` steps."""
+        if self._skin is None or self._skin[0] != len(gaussians) or step - self._skin[1] >= SKIN_EVERY:
+            self._skin = (len(gaussians), step, skin_weights(gaussians.means, self.canonical, self.sigma))
+        return SkinnedGaussians(gaussians, self.canonical, self.key_times, self.positions, self.rotations, self.sigma,
+                                skin=self._skin[2], with_velocities=False)
+
+    def rigidity(self) -> torch.Tensor:
+        return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)
+
+    def step(self) -> None:
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+
+    def poses(self, t: float) -> tuple[torch.Tensor, torch.Tensor]:
+        return node_poses(self.key_times, self.positions, self.rotations, t)
+
+    def state_dict(self) -> dict:
+        """What a resumed run needs: the tensors, the spacing, the optimizer's moments and the current skin."""
+        skin = None if self._skin is None else {"count": self._skin[0], "step": self._skin[1],
+                                                 "nodes": self._skin[2][0].cpu(), "weights": self._skin[2][1].cpu()}
+        return {"key_times": self.key_times.cpu(), "canonical": self.canonical.cpu(), "sigma": self.sigma,
+                "positions": self.positions.detach().cpu(), "rotations": self.rotations.detach().cpu(),
+                "optimizer": self.optimizer.state_dict(), "skin": skin}
+
+    @classmethod
+    def from_state(cls, state: dict, lr_positions: float, lr_rotations: float, device) -> "Nodes":
+        nodes = cls(state["key_times"], state["canonical"], state["positions"], state["rotations"], state["sigma"],
+                    lr_positions, lr_rotations, device)
+        nodes.optimizer.load_state_dict(state["optimizer"])
+        skin = state.get("skin")
+        if skin:  # the skin of the interrupted run, so that the resumed one recomputes it at the same steps
+            nodes._skin = (int(skin["count"]), int(skin["step"]),
+                           (skin["nodes"].to(device), skin["weights"].to(device)))
+        return nodes

@@ -12,10 +12,12 @@ EXPERIMENT:
   nodes  (prototype, any image matrix) motion shared across Gaussians by control nodes, as in SC-GS (Huang et al.,
          CVPR 2024): at the flow step (`--flow-motion-at`) 512 nodes are drawn (farthest-point sampling) among the
          Gaussians of the middle frame and tracked frame by frame, each by the rigid (Kabsch) fit of its 24 nearest
-         Gaussians' optical-flow tracks (`splatreel.train.motion.flow_tracks`); from then on every Gaussian is carried
-         from its (frozen) temporal mean by the blend of its 4 nearest nodes' rigid motions (linear blend skinning,
-         Gaussian weights of the distance), the node poses per frame are learned with the Gaussians, and splits are
-         in space only.
+         Gaussians' optical-flow tracks (`splatreel.train.motion.flow_tracks`). Every Gaussian is then carried once
+         to the nodes' canonical frame (the middle frame's; its mean and the spatial part of its 4D rotation), and
+         from then on shown at time t by the blend of its 4 nearest nodes' rigid motions (linear blend skinning,
+         Gaussian weights of the canonical distance); the node poses per key frame are learned with the Gaussians,
+         Catmull-Rom between keys, and splits are in space only. The temporal means keep learning: they no longer
+         move a Gaussian, only set when it shows.
 
 Both replace the native conditional mean (and its quadratic term) by the carried one; the temporal opacity, the
 colour and the conditional covariance's shape stay native. The patches are this script's alone: nothing in the
@@ -41,8 +43,11 @@ from splatreel.train import strategy as _strategy
 from splatreel.train import trainer as _trainer
 from splatreel.train.motion import flow_tracks
 
-NODES, NODE_NEIGHBOURS, FIT_NEIGHBOURS = 512, 4, 24
+NODES, NODE_NEIGHBOURS, FIT_NEIGHBOURS, RIGID_NEIGHBOURS = 512, 4, 24, 8
 LR_NODE_POSITIONS, LR_NODE_ROTATIONS = 1e-4, 5e-4  # positions times the scene extent
+#: weight of the as-rigid-as-possible term between neighbouring nodes (SC-GS's ARAP loss), on offsets measured in
+#: node spacings
+LAMBDA_RIGID = float(__import__("os").environ.get("SPLATREEL_NODES_RIGID", "0.1"))
 _native_sliced = Gaussians4D._sliced
 _state: dict = {"carry": None}  # carry(model, t, rows, cov3) -> (means, cov3), once the motion is on
 
@@ -128,73 +133,125 @@ def _kabsch(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
     return vt.transpose(1, 2) @ flip @ u.transpose(1, 2), cx[:, 0], cy[:, 0]
 
 
+def _catmull_rom(keys: torch.Tensor, i: int, u: float) -> torch.Tensor:
+    """The uniform Catmull-Rom spline through `keys` ``[F, ...]`` between keys i and i + 1 at `u` in [0, 1]; the
+    missing neighbour at either end is the reflection of the next key across the last."""
+    last = len(keys) - 1
+    p1, p2 = keys[i], keys[min(i + 1, last)]
+    p0 = keys[i - 1] if i > 0 else 2 * p1 - p2
+    p3 = keys[i + 2] if i + 2 <= last else 2 * p2 - p1
+    return 0.5 * (2 * p1 + (p2 - p0) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u ** 2
+                  + (3 * p1 - p0 - 3 * p2 + p3) * u ** 3)
+
+
 class NodeGraph:
-    """Control nodes' poses at each key frame (positions ``[F, M, 3]``, rotations ``[F, M, 4]``), interpolated linearly
-    (normalised lerp of the quaternions) between keys, and each Gaussian's nearest nodes and blend weights."""
+    """Control nodes: a canonical position each ``[M, 3]`` (where tracking found it at the middle frame, fixed) and a
+    pose at each key frame (positions ``[F, M, 3]``, rotations ``[F, M, 4]`` from the canonical frame, learned).
+    Between keys the positions follow a Catmull-Rom spline (a chord would cut the arc of a turning part: 2 % of the
+    radius half-way through a 24-degree turn) and the rotations a normalised lerp.
+
+    The Gaussians are stored in the canonical frame (`to_canonical`, once): a Gaussian at time t is
+    sum_k w_k (R_k(t) (x - c_k) + p_k(t)) over its nearest nodes k, so its temporal mean only sets when it shows."""
 
     def __init__(self, key_s: torch.Tensor, positions: torch.Tensor, rotations: torch.Tensor, extent: float):
         from scipy.spatial import cKDTree
 
         self.key_s = key_s.double()
+        self.canonical = positions[len(positions) // 2].float().clone()
         self.positions = torch.nn.Parameter(positions.float())
         self.rotations = torch.nn.Parameter(rotations.float())
         self.optimizer = torch.optim.Adam([{"params": [self.positions], "lr": LR_NODE_POSITIONS * extent},
                                            {"params": [self.rotations], "lr": LR_NODE_ROTATIONS}], eps=1e-15)
-        middle = positions[len(positions) // 2].numpy()
-        self.sigma = float(np.median(cKDTree(middle).query(middle, k=2)[0][:, 1]))
+        middle = self.canonical.double().numpy()
+        self.tree = cKDTree(middle)
+        self.sigma = float(np.median(self.tree.query(middle, k=2)[0][:, 1]))
         self._skin: dict = {}
 
-    def pose(self, s: torch.Tensor, nodes: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """Node positions and rotation matrices at clip shares `s` ``[G]`` of nodes ``[G, K]`` (``[G, K, 3]``,
-        ``[G, K, 3, 3]``), or of every node at one share (`nodes` None, `s` a float: ``[M, 3]``, ``[M, 3, 3]``)."""
-        s = torch.as_tensor(s, dtype=torch.float64).reshape(-1)
-        i = (torch.searchsorted(self.key_s, s.contiguous(), right=True) - 1).clamp(0, len(self.key_s) - 2)
-        w = ((s - self.key_s[i]) / (self.key_s[i + 1] - self.key_s[i])).clamp(0, 1).float()
-        if nodes is None:
-            i, j, w, idx = int(i[0]), int(i[0]) + 1, w[0], slice(None)
-        else:
-            i, j, w, idx = i[:, None], i[:, None] + 1, w[:, None, None], nodes
-        p = self.positions[i, idx] * (1 - w) + self.positions[j, idx] * w
-        qi, qj = self.rotations[i, idx], self.rotations[j, idx]
+    def pose(self, s: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every node's position ``[M, 3]`` and rotation matrix ``[M, 3, 3]`` at clip share `s`."""
+        s = min(max(float(s), float(self.key_s[0])), float(self.key_s[-1]))
+        i = int((torch.searchsorted(self.key_s, torch.tensor([s], dtype=torch.float64), right=True) - 1)
+                .clamp(0, len(self.key_s) - 2))
+        u = (s - float(self.key_s[i])) / float(self.key_s[i + 1] - self.key_s[i])
+        qi, qj = self.rotations[i], self.rotations[i + 1]
         qj = torch.where((qi * qj).sum(-1, keepdim=True) < 0, -qj, qj)
-        return p, quaternion.to_rotmat(quaternion.normalize(qi * (1 - w) + qj * w))
+        return _catmull_rom(self.positions, i, u), quaternion.to_rotmat(quaternion.normalize(qi * (1 - u) + qj * u))
+
+    def rigidity(self) -> torch.Tensor:
+        """As-rigid-as-possible: at every key, each node's offset to its `RIGID_NEIGHBOURS` canonical neighbours is
+        its canonical offset turned by the node's rotation (squared residual in node spacings, weighted by the
+        canonical distance)."""
+        if not hasattr(self, "_rigid_pairs"):
+            d, j = self.tree.query(self.canonical.double().numpy(), k=RIGID_NEIGHBOURS + 1)
+            self._rigid_pairs = (torch.from_numpy(j[:, 1:]),
+                                 torch.from_numpy(np.exp(-0.5 * (d[:, 1:] / self.sigma) ** 2)).float())
+        j, w = self._rigid_pairs
+        offsets = self.canonical[j] - self.canonical[:, None, :]  # [M, n, 3]
+        rot = quaternion.to_rotmat(quaternion.normalize(self.rotations))  # [F, M, 3, 3]
+        turned = (rot[:, :, None] @ offsets[None, ..., None])[..., 0]  # [F, M, n, 3]
+        moved = self.positions[:, j] - self.positions[:, :, None, :]
+        return (w * ((moved - turned) ** 2).sum(-1)).mean() / self.sigma ** 2
+
+    def weights(self, points: np.ndarray, tree) -> tuple[torch.Tensor, torch.Tensor]:
+        d, idx = tree.query(points, k=NODE_NEIGHBOURS)
+        w = np.exp(-0.5 * (d.reshape(len(points), -1) / self.sigma) ** 2) + 1e-8
+        return (torch.from_numpy(idx.reshape(len(points), -1)),
+                torch.from_numpy(w / w.sum(1, keepdims=True)).float())
 
     def skin(self, model: Gaussians4D) -> tuple[torch.Tensor, torch.Tensor]:
-        """Each Gaussian's `NODE_NEIGHBOURS` nearest nodes at its key frame ``[N, K]`` and their weights ``[N, K]``
-        (cached per model; `forget` after the nodes moved)."""
-        from scipy.spatial import cKDTree
-
-        key = (len(model), model.means.data_ptr(), float(model.t_means.detach().sum()))  # t_means are frozen
+        """Each Gaussian's `NODE_NEIGHBOURS` nearest nodes in the canonical frame ``[N, K]`` and their weights
+        (cached per model; `forget` after the Gaussians moved)."""
+        key = (len(model), model.means.data_ptr())
         if key not in self._skin:
-            s = _normalised_times(model, None)
-            near = torch.argmin((s[:, None] - self.key_s[None]).abs(), 1).numpy()
-            x = model.means.detach().double().cpu().numpy()
-            nodes = np.zeros((len(x), NODE_NEIGHBOURS), dtype=np.int64)
-            dist = np.zeros((len(x), NODE_NEIGHBOURS))
-            keys = self.positions.detach().double().numpy()
-            for k in np.unique(near):
-                rows = np.nonzero(near == k)[0]
-                d, idx = cKDTree(keys[k]).query(x[rows], k=NODE_NEIGHBOURS)
-                nodes[rows], dist[rows] = idx.reshape(-1, NODE_NEIGHBOURS), d.reshape(-1, NODE_NEIGHBOURS)
-            w = np.exp(-0.5 * (dist / self.sigma) ** 2) + 1e-8
-            self._skin = {key: (torch.from_numpy(nodes), torch.from_numpy(w / w.sum(1, keepdims=True)).float())}
+            self._skin = {key: self.weights(model.means.detach().double().cpu().numpy(), self.tree)}
         return self._skin[key]
 
     def forget(self) -> None:
         self._skin = {}
 
+    def to_canonical(self, model: Gaussians4D) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each Gaussian's mean and spatial rotation (canonical to its own time) ``[N, 3]``, ``[N, 3, 3]``, carried
+        back to the canonical frame from its temporal mean by the inverse blend of the nodes nearest it there."""
+        from scipy.spatial import cKDTree
+
+        with torch.no_grad():
+            s = _normalised_times(model, None)
+            near = torch.argmin((s[:, None] - self.key_s[None]).abs(), 1).numpy()
+            mu = model.means.detach().float()
+            means, turns = torch.empty_like(mu), torch.empty(len(mu), 3, 3)
+            for k in np.unique(near):
+                rows = np.nonzero(near == k)[0]
+                nodes, w = self.weights(mu[rows].double().numpy(), cKDTree(self.positions[k].double().numpy()))
+                p, r = self.pose(float(self.key_s[k]))
+                p, r, c = p[nodes], r[nodes], self.canonical[nodes]
+                local = (r.transpose(-1, -2) @ (mu[rows, None, :] - p)[..., None])[..., 0] + c
+                means[rows] = (w[..., None] * local).sum(1)
+                q = self.rotations[k][nodes]
+                q = torch.where((q * q[:, :1]).sum(-1, keepdim=True) < 0, -q, q)
+                turns[rows] = quaternion.to_rotmat(quaternion.normalize((w[..., None] * q).sum(1)))
+        return means, turns
+
     def carry(self, model: Gaussians4D, t: float, rows, cov3: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         nodes, weights = self.skin(model)
         pick = (lambda x: x) if rows is None else (lambda x: take_rows(x, rows))  # noqa: E731
         mu, nodes, weights = pick(model.means), pick(nodes), pick(weights)
-        p_anchor, r_anchor = self.pose(_normalised_times(model, rows), nodes)
-        local = (r_anchor.transpose(-1, -2) @ (mu[:, None, :] - p_anchor)[..., None])[..., 0]
         t0, t1 = model.time_range
         p_now, r_now = self.pose((t - t0) / (t1 - t0))
-        p_now, r_now = p_now[nodes], r_now[nodes]
-        means = (weights[..., None] * ((r_now @ local[..., None])[..., 0] + p_now)).sum(1)
-        rot = (weights[..., None, None] * (r_now @ r_anchor.transpose(-1, -2))).sum(1)
+        p_now, r_now, c = p_now[nodes], r_now[nodes], self.canonical[nodes]
+        means = (weights[..., None] * ((r_now @ (mu[:, None, :] - c)[..., None])[..., 0] + p_now)).sum(1)
+        rot = (weights[..., None, None] * r_now).sum(1)
         return means, rot @ cov3 @ rot.transpose(1, 2)
+
+
+def _turned_4d(quats_l: torch.Tensor, quats_r: torch.Tensor, turn: torch.Tensor, convention: str):
+    """The 4D rotations' quaternion pairs after a spatial turn ``[N, 3, 3]`` (R4 -> diag(turn, 1) R4): a turn of
+    the x, y, z axes is q v conj(q) on the quaternion v = (t, ...) read in the convention's axis order."""
+    if convention == "current":  # R4[i, j] = A[3-i, 3-j]: x, y, z are the quaternion's k, j, i
+        flip = torch.tensor([[0.0, 0, 1], [0, 1, 0], [1, 0, 0]], dtype=turn.dtype)
+        q = quaternion.from_rotmat(flip @ turn @ flip)
+    else:  # legacy: R4 = A, where t is not the real part: no conjugation turns x, y, z alone (not the default)
+        raise NotImplementedError("the nodes experiment needs the 'current' 4D rotation convention")
+    return quaternion.multiply(q, quats_l), quaternion.multiply(q, quats_r)
 
 
 def track_nodes(trainer) -> NodeGraph | None:
@@ -236,13 +293,18 @@ def use_nodes() -> list[str]:
         if graph is None:
             print("[nodes] no camera films consecutive frames: the native motion stays", flush=True)
             return 0
+        model = self.model().to("cpu")
+        means, turns = graph.to_canonical(model)
+        quats_l, quats_r = _turned_4d(model.quats_l.detach(), model.quats_r.detach(), turns.transpose(1, 2),
+                                      self.cfg.rotation_convention)
+        _strategy.replace_values(self.params, self.optimizer, {"means": means.to(self.device),
+                                                               "quats_l": quats_l.to(self.device),
+                                                               "quats_r": quats_r.to(self.device)})
         self.node_graph = graph
         _state["carry"] = graph.carry
-        # the temporal means frozen: the carried position depends on them (the schedule sets only other rates)
-        for group in self.optimizer.param_groups:
-            if group["name"] == "t_means":
-                group["lr"] = 0.0
-        print(f"[nodes] {graph.positions.shape[1]} nodes tracked over {graph.positions.shape[0]} frames", flush=True)
+        _state["tracked"] = (graph.positions.detach().clone(), graph.rotations.detach().clone())
+        print(f"[nodes] {graph.positions.shape[1]} nodes tracked over {graph.positions.shape[0]} frames; the "
+              "Gaussians moved to their canonical frame", flush=True)
         return 1
 
     native_step = _trainer.Trainer.train_step
@@ -251,15 +313,56 @@ def use_nodes() -> list[str]:
         out = native_step(self)
         graph = getattr(self, "node_graph", None)
         if graph is not None:
+            if LAMBDA_RIGID:
+                (LAMBDA_RIGID * graph.rigidity()).backward()
             graph.optimizer.step()
             graph.optimizer.zero_grad(set_to_none=True)
             if self.step % 100 == 0:
                 graph.forget()
         return out
 
+    native_run = _trainer.Trainer.run
+
+    def run(self, *args, **kwargs):
+        result = native_run(self, *args, **kwargs)
+        graph, out = getattr(self, "node_graph", None), _dump_path()
+        if graph is not None and out is not None:  # the node poses, tracked and learned, for a look beside the truth
+            torch.save({"key_s": graph.key_s, "canonical": graph.canonical, "tracked": _state["tracked"],
+                        "learned": (graph.positions.detach(), graph.rotations.detach()),
+                        "time_range": self.time_range}, out)
+        return result
+
     _trainer.Trainer.set_flow_motion = set_flow_motion
     _trainer.Trainer.train_step = train_step
+    _trainer.Trainer.run = run
     return []
+
+
+def _dump_path() -> Path | None:
+    """OUT.nodes.pt beside the bench's ``--json OUT.json``."""
+    if "--json" not in sys.argv:
+        return None
+    return Path(sys.argv[sys.argv.index("--json") + 1]).with_suffix(".nodes.pt")
+
+
+class _NativeGaussians4D(Gaussians4D):
+    """A sample's exact model: the bench's upper bound, which the experiment's motion must not carry."""
+    _sliced = _native_sliced
+
+
+def _keep_exact_models_native() -> None:
+    import dataclasses
+
+    import splatreel.samples as samples
+
+    build = samples.build_model
+
+    def build_model(*args, **kwargs):
+        model = build(*args, **kwargs)
+        if not isinstance(model, Gaussians4D):
+            return model
+        return _NativeGaussians4D(**{f.name: getattr(model, f.name) for f in dataclasses.fields(model) if f.init})
+    samples.build_model = build_model
 
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes": use_nodes}
@@ -270,6 +373,7 @@ def main() -> None:
         sys.exit(f"usage: python bench/motion_experiments.py {{{','.join(EXPERIMENTS)}}} [bench/train.py options]")
     extra = EXPERIMENTS[sys.argv[1]]()
     Gaussians4D._sliced = _carried_sliced
+    _keep_exact_models_native()
     _split_in_space_only()
     sys.argv = [str(Path(__file__).with_name("train.py"))] + sys.argv[2:] + extra
     runpy.run_path(sys.argv[0], run_name="__main__")

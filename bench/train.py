@@ -11,8 +11,9 @@ black instead of the dataset's white: a dark silhouette on white costs far more)
 8th training image, at its key time, where the test views are at in-between times), `upper_bound_psnr` (the exact
 model, `splatreel sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest
 axis ratio is above 10, on the 4D Gaussians' spatial scales), `sliced_needle_share` (the same for the 3D Gaussians
-that slicing shows), the decisions of the recipe, what the alpha-agreement test said, and the baselines' PSNR on the
-same test views:
+that slicing shows), `test_per_view` (each test view's camera, time, PSNR and `at_frame`: whether its time is a
+training frame's or in between), the decisions of the recipe, what the alpha-agreement test said, and the
+baselines' PSNR on the same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.
@@ -42,6 +43,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 #: Every this-many-th training image is scored for the fit (`train_view_psnr`).
 FIT_EVERY = 8
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,13 +69,13 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         target, mask = view_target(view, ds.background, trainer.device)
         sync()
         t = time.perf_counter()
-        model = trainer.model()
+        model, native = trainer.model(), trainer.native_model()
         with torch.no_grad():
-            var_t = model.covariance_4d()[:, 3, 3]
+            var_t = native.covariance_4d()[:, 3, 3]
         sync()
         t_var = time.perf_counter() - t  # the trainer finds the live Gaussians once per step, not per image
         t = time.perf_counter() - t_var / cfg.batch_size
-        g = model.slice(view.time, rows=alive_at(view.time, model.t_means.detach(), var_t))
+        g = model.slice(view.time, rows=alive_at(view.time, native.t_means.detach(), var_t))
         sync()
         t1 = time.perf_counter()
         out = rasterize(g, view.camera, trainer.bg, sh_degree=cfg.sh_degree)
@@ -84,12 +87,14 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
         loss.backward()
         sync()
         t4 = time.perf_counter()
-        regularisers = trainer.regularisers(model, static=False)  # once per step, on every Gaussian
+        regularisers = trainer.regularisers(native, static=False)  # once per step, on every Gaussian
         if regularisers is not None:
             regularisers.backward()
         sync()
         t5 = time.perf_counter()
         trainer.optimizer.step()  # after the model was saved and scored: these steps change nothing reported
+        if trainer.nodes is not None:
+            trainer.nodes.step()
         sync()
         t6 = time.perf_counter()
         trainer.optimizer.zero_grad(set_to_none=True)
@@ -133,7 +138,7 @@ def sliced_needle_share(trainer, ratio: float = 10.0) -> float:
     from splatreel.covariance import condition_on_time
 
     with torch.no_grad():
-        var = torch.linalg.eigvalsh(condition_on_time(trainer.model().covariance_4d())[0]).clamp_min(1e-30)
+        var = torch.linalg.eigvalsh(condition_on_time(trainer.native_model().covariance_4d())[0]).clamp_min(1e-30)
     return float((var[:, -1] / var[:, 0] > ratio * ratio).float().mean())
 
 
@@ -148,6 +153,14 @@ def upper_bound(name: str, ds) -> float | None:
     except SplatreelError:
         return None
     return evaluate(model, ds.test, ds.background, progress=False)["psnr"]
+
+
+def per_view_scores(ev: dict, ds) -> list[dict]:
+    """Each test view's camera, time, PSNR and whether its time is a training frame's (the others are in between)."""
+    frames = np.asarray(ds.frame_times, dtype=np.float64)
+    return [{"view": p["view"], "time": round(float(p["time"]), 6), "psnr": round(p["psnr"], 3),
+             "at_frame": bool(np.abs(frames - p["time"]).min() < 1e-6 * max(1.0, np.ptp(frames)))}
+            for p in ev["per_view"]]
 
 
 def config_overrides(items: list[str]) -> dict:
@@ -242,6 +255,7 @@ def main() -> None:
                          "decisions": [d.line() for d in decisions], "overrides": args.set,
                          "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
+                         "test_per_view": per_view_scores(ev, ds),
                          "generate_seconds": round(gen_s, 2), "device": str(tr.device), "reference_ms": ref_ms,
                          "step": step_breakdown(tr, args.profile_steps) if args.profile_steps else None})
             print(rows[-1], flush=True)

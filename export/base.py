@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from splatreel.constants import RADIUS_SIGMAS
-from splatreel.covariance import decompose_covariance_3d
+from splatreel.covariance import decompose_covariance_3d, nearest_equivalent
 from splatreel.errors import ModelError, SplatreelError
 from splatreel.sh import SH_C0, sh_to_rgb
 
@@ -78,7 +78,8 @@ class SplatFrame:
         index: frame number i (also the USD time code).
         time: model time of the frame.
         means: ``[N, 3]`` centres.
-        quats: ``[N, 4]`` unit rotations, w first, sign kept in the hemisphere of the previous frame.
+        quats: ``[N, 4]`` unit rotations, w first, the equivalent form nearest the previous frame's
+            (`splatreel.covariance.nearest_equivalent`).
         scales: ``[N, 3]`` linear std-devs along the rotated axes (covariance = R diag(scales)^2 Rᵀ).
         opacities: ``[N]`` activated opacity in [0, 1] (temporal factor applied); exactly 0 where not visible.
         sh: ``[N, K, 3]`` spatial SH coefficients at this time, K = (sh_degree + 1)^2, 3DGS order.
@@ -145,8 +146,9 @@ def slice_frame(model, t: float, index: int = 0, previous: SplatFrame | None = N
     if bad:
         raise ModelError(f"the model gives non-finite {', '.join(bad)} at t={t:g}")
     if previous is not None and len(previous) == out["quats"].shape[0]:
-        q = out["quats"]  # may share memory with the cached decomposition: never modify it in place
-        out["quats"] = np.where(((q * previous.quats).sum(-1) < 0)[:, None], -q, q)
+        # the equivalent rotation nearest the previous frame's (a new array: the cached decomposition stays as is)
+        out["quats"] = nearest_equivalent(torch.from_numpy(out["quats"]),
+                                          torch.from_numpy(previous.quats)).numpy()
     return SplatFrame(index=index, time=float(t), visible=g.visible.detach().cpu().numpy().astype(bool),
                       sh_degree=int(g.sh_degree), **out)
 

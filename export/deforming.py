@@ -28,6 +28,7 @@ import numpy as np
 
 from splatreel.constants import TEMPORAL_CULL
 from splatreel.meshes import vertex_normals
+from splatreel.pointsets import rigid_fit
 
 from .base import iter_frames
 
@@ -127,16 +128,7 @@ def rigid_carry(points: np.ndarray, before: np.ndarray, after: np.ndarray, weigh
     that best takes its carriers from `before` to `after` (``[V, k, 3]``, `weights` ``[V, k]`` summing to 1): a
     turning surface turns its vertices with it, where the mean displacement would shear them. Where the carriers
     cannot fix a rotation (fewer than three spread out), the mean displacement."""
-    c0 = (weights[..., None] * before).sum(1)
-    c1 = (weights[..., None] * after).sum(1)
-    a, b = before - c0[:, None], after - c1[:, None]
-    h = np.einsum("vk,vki,vkj->vij", weights, a, b)  # cross-covariance
-    u, sv, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("vij,vjk->vik", vt.transpose(0, 2, 1), u.transpose(0, 2, 1))))
-    fix = np.ones_like(sv)
-    fix[:, 2] = d
-    rot = np.einsum("vji,vj,vkj->vik", vt, fix, u)  # V diag(1, 1, d) Uᵀ
-    spread = sv[:, 1] > 1e-3 * np.maximum(sv[:, 0], 1e-30)  # a plane's worth of carriers at least
+    rot, c0, c1, spread = rigid_fit(before, after, weights)
     moved = np.einsum("vij,vj->vi", rot, points - c0) + c1
     return np.where(spread[:, None], moved, points + (c1 - c0))
 

@@ -7,9 +7,7 @@ exported as its keys. `bake_keyframes` works for any model with ``slice(t)``; at
 
 * the slice's means;
 * the scales and rotations of its covariances (`splatreel.covariance.decompose_covariance_3d`), each rotation
-  made the one of its equivalent forms nearest the previous key's (an eigen-decomposition's axes have arbitrary
-  signs, and a sign flip of two axes turns the quaternion by 180 degrees: slerp between keys would spin the
-  Gaussian through half a turn that the model never makes);
+  made the one of its equivalent forms nearest the previous key's (`splatreel.covariance.nearest_equivalent`);
 * its opacities, 0 where the slice does not draw the Gaussian (`KeyframedGaussians` marks an absent Gaussian so);
 * its colour with the time terms summed at that time (`Gaussians3D.sh`).
 
@@ -26,27 +24,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .covariance import decompose_covariance_3d
+from .covariance import decompose_covariance_3d, nearest_equivalent
 from .model import KeyframedGaussians
-
-#: The four w-first quaternions of a half turn about each local axis (and none): right-multiplied into a rotation
-#: they flip the signs of two of its axes, which leaves R diag(s^2) R^T unchanged.
-_AXIS_FLIPS = ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
-
-
-def nearest_equivalent(quats: Tensor, previous: Tensor) -> Tensor:
-    """Of the rotations giving the same covariance as `quats` ``[N, 4]`` (w first: itself composed with a half turn
-    about one of its own axes, either sign), the one nearest `previous` ``[N, 4]`` (largest dot product, positive)."""
-    from .quaternion import multiply
-
-    flips = torch.tensor(_AXIS_FLIPS, dtype=quats.dtype, device=quats.device)
-    candidates = multiply(quats[:, None, :], flips[None])  # [N, 4 forms, 4]
-    dots = (candidates * previous[:, None, :]).sum(-1)  # [N, 4]
-    best = dots.abs().argmax(1)
-    rows = torch.arange(len(quats), device=quats.device)
-    picked = candidates[rows, best]
-    return torch.where(dots[rows, best, None] < 0, -picked, picked)
-
 
 def bake_keyframes(model, times) -> KeyframedGaussians:
     """`KeyframedGaussians` whose keys are ``model.slice(t)`` at each of `times` (strictly increasing), in the model's

@@ -60,6 +60,27 @@ def decompose_covariance_3d(cov: Tensor) -> tuple[Tensor, Tensor]:
     return evals.clamp_min(0).sqrt(), quaternion.from_rotmat(evecs)
 
 
+#: The four w-first quaternions of a half turn about each local axis (and none): right-multiplied into a rotation
+#: they flip the signs of two of its axes, which leaves R diag(s^2) R^T unchanged.
+_AXIS_FLIPS = ((1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+
+
+def nearest_equivalent(quats: Tensor, previous: Tensor) -> Tensor:
+    """Of the rotations giving the same covariance as `quats` ``[N, 4]`` (w first: itself composed with a half turn
+    about one of its own axes, either sign), the one nearest `previous` ``[N, 4]`` (largest dot product, positive).
+
+    An eigen-decomposition (`decompose_covariance_3d`) picks its axes' signs freely, and flipping two of them turns
+    the quaternion by half a turn: a sequence of decomposed frames, interpolated (slerp, a USD reader), would spin
+    Gaussians through turns the model never makes unless each frame takes the form nearest the one before."""
+    flips = torch.tensor(_AXIS_FLIPS, dtype=quats.dtype, device=quats.device)
+    candidates = quaternion.multiply(quats[:, None, :], flips[None])  # [N, 4 forms, 4]
+    dots = (candidates * previous[:, None, :]).sum(-1)  # [N, 4]
+    best = dots.abs().argmax(1)
+    rows = torch.arange(len(quats), device=quats.device)
+    picked = candidates[rows, best]
+    return torch.where(dots[rows, best, None] < 0, -picked, picked)
+
+
 # L(q) and Rbar(q) as (component index, sign) per matrix entry, row-major: one gather and one multiply build them
 # (15x fewer tensor ops than stacking 16 components, ~1.6x faster at 1M Gaussians, the same gradients). Both
 # matrices pick the same components; only the signs differ.

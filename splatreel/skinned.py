@@ -27,18 +27,12 @@ import torch
 from torch import Tensor
 
 from . import quaternion
-from .errors import ModelError
-from .model import Gaussians3D, Gaussians4D, take_rows
+from .model import Gaussians3D, Gaussians4D, _check, take_rows
 
 #: Nodes blended per Gaussian (SC-GS uses 4).
 NODES_PER_GAUSSIAN = 4
 #: Node tensors of a checkpoint, after the native ones.
 NODE_TENSORS = ("node_canonical", "node_times", "node_positions", "node_rotations")
-
-
-def _check(cond: bool, msg: str) -> None:
-    if not cond:
-        raise ModelError(msg)
 
 
 def key_segments(times: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
@@ -88,22 +82,26 @@ def node_poses(times: Tensor, positions: Tensor, rotations: Tensor, t: float) ->
     return catmull_rom(positions, i, u)[0], nlerp(rotations[i], rotations[i + 1], u)[0]
 
 
-def skin_weights(points: Tensor, canonical: Tensor, sigma: float, k: int = NODES_PER_GAUSSIAN,
-                 chunk: int = 65536) -> tuple[Tensor, Tensor]:
+def nearest_nodes(nodes: Tensor, points: Tensor, k: int, chunk: int = 65536) -> tuple[Tensor, Tensor]:
+    """Distances and indices ``[N, k]`` of each of `points` ``[N, 3]``'s `k` nearest `nodes` ``[M, 3]`` (exact,
+    brute force in chunks of `chunk` points: M is a few hundred; fewer than k when M < k). Not differentiable."""
+    k = min(k, len(nodes))
+    with torch.no_grad():
+        nodes = nodes.detach().to(points.device, points.dtype)
+        found = [torch.cdist(rows, nodes).topk(k, dim=1, largest=False) for rows in torch.split(points.detach(), chunk)]
+    if not found:
+        return torch.zeros(0, k, dtype=points.dtype, device=points.device), \
+            torch.zeros(0, k, dtype=torch.long, device=points.device)
+    return torch.cat([d for d, _ in found]), torch.cat([j for _, j in found])
+
+
+def skin_weights(points: Tensor, canonical: Tensor, sigma: float, k: int = NODES_PER_GAUSSIAN
+                 ) -> tuple[Tensor, Tensor]:
     """Each point's `k` nearest nodes ``[N, k]`` (int64) and their blend weights ``[N, k]`` (Gaussian of the
     distance, std-dev `sigma`, summing to 1), in the canonical frame. Not differentiable."""
-    k = min(k, len(canonical))
-    idx, dist = [], []
-    with torch.no_grad():
-        nodes = canonical.detach().to(points.device, torch.float32)
-        for rows in torch.split(points.detach().to(torch.float32), chunk):
-            d, j = torch.cdist(rows, nodes).topk(k, dim=1, largest=False)
-            idx.append(j)
-            dist.append(d)
-        d = torch.cat(dist) if dist else torch.zeros(0, k, device=points.device)
-        w = torch.exp(-0.5 * (d / sigma) ** 2) + 1e-8  # a point far from every node still takes its nearest ones
-        return (torch.cat(idx) if idx else torch.zeros(0, k, dtype=torch.long, device=points.device),
-                (w / w.sum(1, keepdim=True)).to(points.dtype))
+    d, idx = nearest_nodes(canonical, points.detach().to(torch.float32), k)
+    w = torch.exp(-0.5 * (d / sigma) ** 2) + 1e-8  # a point far from every node still takes its nearest ones
+    return idx, (w / w.sum(1, keepdim=True)).to(points.dtype)
 
 
 def gather_nodes(x: Tensor, nodes: Tensor) -> Tensor:
@@ -160,7 +158,7 @@ class SkinnedGaussians:
 
     def __post_init__(self) -> None:
         self.node_sigma = float(self.node_sigma)
-        self.validate()
+        self._validate_nodes()  # the Gaussians validated themselves when made (a trainer makes this every step)
         if self.skin is None:
             self.skin = skin_weights(self.gaussians.means, self.node_canonical, self.node_sigma)
 
@@ -200,8 +198,11 @@ class SkinnedGaussians:
         return self.node_times.shape[0]
 
     def validate(self) -> None:
-        """Raise ModelError naming the first node tensor whose shape or dtype is wrong."""
+        """Raise ModelError naming the first tensor whose shape or dtype is wrong."""
         self.gaussians.validate()
+        self._validate_nodes()
+
+    def _validate_nodes(self) -> None:
         m = self.node_canonical.shape[0] if self.node_canonical.dim() == 2 else -1
         f = self.node_times.shape[0] if self.node_times.dim() == 1 else -1
         _check(m >= 1 and self.node_canonical.shape[-1] == 3,

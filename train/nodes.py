@@ -10,7 +10,8 @@ from what the images show:
   drawn by farthest-point sampling among the opaque Gaussians of the middle frame (their positions there are the
   canonical frame);
 * each node is tracked frame by frame, forwards and backwards from the middle: it moves by the rigid (Kabsch) fit of
-  its `FIT_NEIGHBOURS` nearest Gaussians' optical-flow tracks (`train.motion.flow_tracks`) to the next frame;
+  its `FIT_NEIGHBOURS` nearest Gaussians' optical-flow tracks (`train.motion.flow_tracks`) to the next frame
+  (`splatreel.pointsets.rigid_fit`);
 * every Gaussian is carried once from its own frame to the canonical frame (its mean and its conditional covariance)
   by the inverse blend of its nearest nodes there, and loses its native velocity;
 * from then on the node poses at every key frame are parameters, with their own Adam, and an as-rigid-as-possible
@@ -30,8 +31,8 @@ from splatreel import quaternion
 from splatreel.covariance import condition_on_time, covariance_4d_from_motion, decompose_covariance_4d
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
-from splatreel.pointsets import farthest_point_subset
-from splatreel.skinned import SkinnedGaussians, node_poses, skin_weights
+from splatreel.pointsets import farthest_point_subset, rigid_fit
+from splatreel.skinned import SkinnedGaussians, nearest_nodes, node_poses, skin_weights
 
 from .motion import flow_tracks
 
@@ -45,26 +46,11 @@ OPAQUE = 0.1
 SKIN_EVERY = 100
 
 
-def kabsch(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Rotations ``[M, 3, 3]`` with y - cy ≈ R (x - cx) for point sets ``[M, n, 3]``, and the centroids ``[M, 3]``
-    (least squares, Kabsch 1976)."""
-    cx, cy = x.mean(1, keepdim=True), y.mean(1, keepdim=True)
-    u, _, vt = torch.linalg.svd((x - cx).transpose(1, 2) @ (y - cy))
-    d = torch.sign(torch.linalg.det(vt.transpose(1, 2) @ u.transpose(1, 2)))
-    flip = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
-    return vt.transpose(1, 2) @ flip @ u.transpose(1, 2), cx[:, 0], cy[:, 0]
-
-
-def nearest(points: torch.Tensor, queries: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Distances and indices ``[Q, k]`` of each query's `k` nearest `points`."""
-    return torch.cdist(queries, points).topk(min(k, len(points)), dim=1, largest=False)
-
-
 def node_spacing(canonical: torch.Tensor) -> float:
     """The median distance from a node to its nearest other node: the blend weights' std-dev."""
     if len(canonical) < 2:
         return 1.0
-    d, _ = nearest(canonical, canonical, 2)
+    d, _ = nearest_nodes(canonical, canonical, 2)
     return float(d[:, 1].median().clamp_min(1e-6))
 
 
@@ -106,8 +92,9 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
                 pos[k + step], rot[k + step] = pos[k], rot[k]
                 continue
             start = torch.from_numpy(tracks.position[rows])
-            _, idx = nearest(start, pos[k], FIT_NEIGHBOURS)
-            turn, cx, cy = kabsch(start[idx], torch.from_numpy(ends[rows])[idx])
+            _, idx = nearest_nodes(start, pos[k], FIT_NEIGHBOURS)  # each node's nearest tracks
+            idx = idx.numpy()
+            turn, cx, cy, _ = (torch.from_numpy(x) for x in rigid_fit(tracks.position[rows][idx], ends[rows][idx]))
             pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
             rot[k + step] = turn @ rot[k]
     return TrackedNodes(pos[middle].clone(), pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4),
@@ -167,7 +154,7 @@ class Nodes:
         self.rotations = torch.nn.Parameter(rotations.to(device, torch.float32).contiguous())
         self.optimizer = torch.optim.Adam([{"params": [self.positions], "lr": lr_positions},
                                            {"params": [self.rotations], "lr": lr_rotations}], eps=1e-15)
-        d, j = nearest(self.canonical, self.canonical, RIGID_NEIGHBOURS + 1)
+        d, j = nearest_nodes(self.canonical, self.canonical, RIGID_NEIGHBOURS + 1)
         self.pairs, self.pair_weights = j[:, 1:], torch.exp(-0.5 * (d[:, 1:] / self.sigma) ** 2)
         self._skin: tuple | None = None
 

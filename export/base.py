@@ -78,7 +78,8 @@ class SplatFrame:
         index: frame number i (also the USD time code).
         time: model time of the frame.
         means: ``[N, 3]`` centres.
-        quats: ``[N, 4]`` unit rotations, w first, the equivalent form nearest the previous frame's
+        quats: ``[N, 4]`` unit rotations, w first: a model's own (keyframed) with the sign of the previous frame's
+            hemisphere, or decomposed from the covariances in the equivalent form nearest the previous frame's
             (`splatreel.covariance.nearest_equivalent`).
         scales: ``[N, 3]`` linear std-devs along the rotated axes (covariance = R diag(scales)^2 Rᵀ).
         opacities: ``[N]`` activated opacity in [0, 1] (temporal factor applied); exactly 0 where not visible.
@@ -146,9 +147,11 @@ def slice_frame(model, t: float, index: int = 0, previous: SplatFrame | None = N
     if bad:
         raise ModelError(f"the model gives non-finite {', '.join(bad)} at t={t:g}")
     if previous is not None and len(previous) == out["quats"].shape[0]:
-        # the equivalent rotation nearest the previous frame's (a new array: the cached decomposition stays as is)
-        out["quats"] = nearest_equivalent(torch.from_numpy(out["quats"]),
-                                          torch.from_numpy(previous.quats)).numpy()
+        q = out["quats"]  # may share memory with the cached decomposition: never modify it in place
+        if g.quats is None:  # decomposed: its axes' signs are arbitrary, take the form nearest the previous frame's
+            out["quats"] = nearest_equivalent(torch.from_numpy(q), torch.from_numpy(previous.quats)).numpy()
+        else:  # the model's own rotations: only the sign is free
+            out["quats"] = np.where(((q * previous.quats).sum(-1) < 0)[:, None], -q, q)
     return SplatFrame(index=index, time=float(t), visible=g.visible.detach().cpu().numpy().astype(bool),
                       sh_degree=int(g.sh_degree), **out)
 

@@ -63,7 +63,7 @@ def rigid_nodes(m=30, frames=5, seed=0) -> tuple[TrackedNodes, torch.Tensor]:
     quats = torch.stack([torch.cat([torch.tensor([math.cos(a / 2)], dtype=torch.float64), math.sin(a / 2) * axis])
                          .expand(m, 4) for a in np.radians(20.0 * (np.arange(frames) - frames // 2))])
     positions = (quaternion.to_rotmat(quats) @ canonical[None, ..., None])[..., 0]
-    return TrackedNodes(canonical, positions, quats, frames // 2), torch.linspace(0, 1, frames, dtype=torch.float64)
+    return TrackedNodes(positions, quats, frames // 2), torch.linspace(0, 1, frames, dtype=torch.float64)
 
 
 def test_gaussians_moved_to_the_canonical_frame_are_where_they_were_at_their_own_time():

@@ -32,7 +32,7 @@ from splatreel.covariance import condition_on_time, covariance_4d_from_motion, d
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
-from splatreel.skinned import SkinnedGaussians, nearest_nodes, node_poses, skin_weights
+from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
 from .motion import flow_tracks
 
@@ -56,13 +56,17 @@ def node_spacing(canonical: torch.Tensor) -> float:
 
 @dataclass
 class TrackedNodes:
-    """Nodes tracked through the frames: canonical positions ``[M, 3]`` (at frame `middle`), positions
-    ``[F, M, 3]`` and rotations from the canonical frame ``[F, M, 4]`` at each frame (float64)."""
+    """Nodes tracked through the frames: positions ``[F, M, 3]`` and rotations from the canonical frame
+    ``[F, M, 4]`` at each frame (float64); the canonical frame is frame `middle`'s."""
 
-    canonical: torch.Tensor
     positions: torch.Tensor
     rotations: torch.Tensor
     middle: int
+
+    @property
+    def canonical(self) -> torch.Tensor:
+        """``[M, 3]`` the nodes' canonical positions: where they are at frame `middle`."""
+        return self.positions[self.middle]
 
 
 def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count: int,
@@ -97,8 +101,7 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
             turn, cx, cy, _ = (torch.from_numpy(x) for x in rigid_fit(tracks.position[rows][idx], ends[rows][idx]))
             pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
             rot[k + step] = turn @ rot[k]
-    return TrackedNodes(pos[middle].clone(), pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4),
-                        middle)
+    return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle)
 
 
 def to_canonical(model: Gaussians4D, key_times: torch.Tensor, nodes: TrackedNodes,
@@ -172,9 +175,6 @@ class Nodes:
     def step(self) -> None:
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
-
-    def poses(self, t: float) -> tuple[torch.Tensor, torch.Tensor]:
-        return node_poses(self.key_times, self.positions, self.rotations, t)
 
     def state_dict(self) -> dict:
         """What a resumed run needs: the tensors, the spacing, the optimizer's moments and the current skin."""

@@ -150,22 +150,29 @@ def _cameras(ds: Dataset) -> list[_Camera]:
     return out
 
 
-def _ray_points(cam, pixels: np.ndarray, depths: np.ndarray) -> np.ndarray:
-    """``[R, S, 3]`` world points of pixel centres ``[R, 2]`` (integer x, y) at camera depths ``[S]``."""
+def _ray_directions(cam, pixels: np.ndarray) -> np.ndarray:
+    """``[R, 3]`` world directions, per unit of camera depth, of the rays through pixel centres ``[R, 2]`` (integer
+    x, y): the ray's point at depth d is ``cam.position + d * direction``."""
     uv = pixels + 0.5
     dirs = np.stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, np.ones(len(uv))], -1)
-    dirs = dirs @ cam.c2w[:3, :3].T  # [R, 3] per unit of depth
-    return cam.position[None, None, :] + dirs[:, None, :] * depths[None, :, None]
+    return dirs @ cam.c2w[:3, :3].T
 
 
-def _seen(cam: _Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(in view ``[N]`` bool, pixel ``[N, 2]`` int) of world points in camera `cam`."""
-    uv, z = cam.camera.project(points)
+def _seen(cam: _Camera, origin: np.ndarray, directions: np.ndarray, depths: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where camera `cam` sees the points of rays from `origin` ``[3]`` along `directions` ``[R, 3]`` at `depths`
+    ``[S]``: (in view ``[R, S]`` bool, pixel x and y ``[R, S]`` int). A ray's points are linear in depth in any
+    camera's frame too, so each camera-space coordinate is one outer product instead of a projection per point
+    (the test projects every camera's rays into every other: this made it ~5x faster)."""
+    rot, shift = cam.camera.w2c[:3, :3], cam.camera.w2c[:3, 3]
+    start, step = rot @ origin + shift, directions @ rot.T  # [3], [R, 3]
+    x, y, z = (start[i] + step[:, i, None] * depths[None, :] for i in range(3))
     h, w = cam.solid.shape
-    with np.errstate(invalid="ignore"):
-        ij = np.floor(np.nan_to_num(uv, nan=-1.0, posinf=-1.0, neginf=-1.0)).astype(np.int64)
-    inside = (z > 1e-6) & (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-    return inside, ij
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(cam.camera.fx * x / z + cam.camera.cx)
+        v = np.floor(cam.camera.fy * y / z + cam.camera.cy)
+    inside = (z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return inside, np.where(inside, u, 0).astype(np.int64), np.where(inside, v, 0).astype(np.int64)
 
 
 def find_alpha_conflicts(ds: Dataset, centre: np.ndarray | None = None, seed: int = 0) -> AlphaConflicts:
@@ -193,23 +200,22 @@ def find_alpha_conflicts(ds: Dataset, centre: np.ndarray | None = None, seed: in
             continue
         pick = rng.choice(len(xs), min(RAYS_PER_CAMERA, len(xs)), replace=False)
         pixels = np.stack([xs[pick], ys[pick]], -1)
-        pts = _ray_points(cam.camera, pixels, depths).reshape(-1, 3)
-        n_seen = np.zeros(len(pts), np.int32)
-        n_solid = np.zeros(len(pts), np.int32)
-        first_solid = np.full((len(pts), 3), -1, np.int64)  # (camera, x, y) of one solid sighting, for colour
+        directions = _ray_directions(cam.camera, pixels)
+        shape = (len(pixels), len(depths))
+        n_seen = np.zeros(shape, np.int32)
+        n_solid = np.zeros(shape, np.int32)
+        first_solid = np.full(shape + (3,), -1, np.int64)  # (camera, x, y) of one solid sighting, for colour
         for o, other in enumerate(cams):
             if o == a:
                 continue
-            inside, ij = _seen(other, pts)
-            solid = np.zeros(len(pts), bool)
-            solid[inside] = other.solid[ij[inside, 1], ij[inside, 0]]
+            inside, x, y = _seen(other, cam.camera.position, directions, depths)
+            solid = inside & other.solid[y, x]
             n_seen += inside
             n_solid += solid
-            new = solid & (first_solid[:, 0] < 0)
-            first_solid[new] = np.column_stack([np.full(int(new.sum()), o), ij[new]])
+            new = solid & (first_solid[..., 0] < 0)
+            first_solid[new] = np.column_stack([np.full(int(new.sum()), o), x[new], y[new]])
         contradicted = (n_seen >= MIN_WITNESSES) & (n_solid >= SOLID_SHARE * n_seen)
-        per_ray = contradicted.reshape(len(pixels), -1)
-        bad = per_ray.any(1)
+        bad = contradicted.any(1)
         name = relative_name(cam.view.name, ds.root)
         found = CameraConflict(cam.view.view_id, name, len(pixels), int(bad.sum()), len(xs) / marks_size)
         result.cameras.append(found)
@@ -221,7 +227,7 @@ def find_alpha_conflicts(ds: Dataset, centre: np.ndarray | None = None, seed: in
         k = 2 * max(1, round(REGION_GROWTH * w / 2)) + 1
         grown = cv2.dilate(marks, np.ones((k, k), np.uint8))
         result.regions[cam.view.view_id] = cv2.resize(grown, cam.view.size, interpolation=cv2.INTER_NEAREST) > 0
-        hits = first_solid[np.nonzero(contradicted)[0]]
+        hits = first_solid[contradicted]
         hits = hits[hits[:, 0] >= 0]
         colours.extend(cams[o].colour[y, x] for o, x, y in hits[:: max(1, len(hits) // 2000)])
     if not result.cameras:

@@ -13,6 +13,8 @@ there: a guess, and the cause of most of the error.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -131,6 +133,8 @@ def midway_view(a: DatasetImage, b: DatasetImage, background) -> InBetweenFrame:
 
 def inbetween_views(ds: Dataset) -> list[InBetweenFrame]:
     """One interpolated image half-way between each pair of consecutive frames of every camera's video
-    (`camera_videos`); none when no camera films consecutive frames."""
-    return [midway_view(ds.train[i], ds.train[j], ds.background)
-            for video in camera_videos(ds) for i, j in zip(video[:-1], video[1:])]
+    (`camera_videos`); none when no camera films consecutive frames. The pairs are interpolated on a thread per
+    core (OpenCV and numpy release the GIL): this is set-up time that a time budget counts."""
+    pairs = [(ds.train[i], ds.train[j]) for video in camera_videos(ds) for i, j in zip(video[:-1], video[1:])]
+    with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
+        return list(pool.map(lambda pair: midway_view(*pair, ds.background), pairs))

@@ -133,30 +133,39 @@ def start_static(raw: dict[str, torch.Tensor], share: float, time_range: tuple[f
     return out
 
 
-def carve(points: torch.Tensor, times: torch.Tensor, ds: Dataset, min_agreement: float = 0.9) -> torch.Tensor:
-    """``[M]`` bool: which space-time candidates (points ``[M,3]`` at times ``[M]``) lie inside the object's visual
-    hull: at the training frame nearest to each candidate's time, its projection must fall on the foreground
-    (alpha >= 0.5, masks dilated by 2 px) in at least `min_agreement` of the views that see it."""
+def foreground_masks(ds: Dataset) -> dict[int, np.ndarray]:
+    """Each training view's foreground (alpha >= 0.5, dilated by 2 px) by its index in ``ds.train``: what `carve`
+    tests against, computed once for all its rounds."""
     import cv2
 
+    kernel = np.ones((5, 5), np.uint8)
+    return {i: cv2.dilate((v.alpha >= 128).astype(np.uint8), kernel) > 0
+            for i, v in enumerate(ds.train) if v.alpha is not None}
+
+
+def carve(points: torch.Tensor, times: torch.Tensor, ds: Dataset, min_agreement: float = 0.9,
+          masks: dict[int, np.ndarray] | None = None) -> torch.Tensor:
+    """``[M]`` bool: which space-time candidates (points ``[M,3]`` at times ``[M]``) lie inside the object's visual
+    hull: at the training frame nearest to each candidate's time, its projection must fall on the foreground
+    (alpha >= 0.5, masks dilated by 2 px; `foreground_masks`, computed here when not given) in at least
+    `min_agreement` of the views that see it."""
+    masks = foreground_masks(ds) if masks is None else masks
     frame_times = np.asarray(ds.frame_times)
     nearest = np.abs(times.numpy()[:, None] - frame_times[None, :]).argmin(1)
+    order = np.argsort(nearest, kind="stable")
+    at_frame = np.split(order, np.searchsorted(nearest[order], np.arange(1, len(frame_times))))
     pts = points.double().numpy()
     votes = np.zeros(len(pts))
     seen = np.zeros(len(pts))
-    kernel = np.ones((5, 5), np.uint8)
-    for v in ds.train:
-        if v.alpha is None:
-            continue
-        fi = int(np.abs(frame_times - v.time).argmin())
-        sel = np.nonzero(nearest == fi)[0]
+    for i, mask in masks.items():
+        v = ds.train[i]
+        sel = at_frame[int(np.abs(frame_times - v.time).argmin())]
         if sel.size == 0:
             continue
         uv, z = v.camera.project(pts[sel])
         w, h = v.size
         ij = np.floor(uv).astype(np.int64)
         inside = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-        mask = cv2.dilate((v.alpha >= 128).astype(np.uint8), kernel) > 0
         fg = np.zeros(sel.size, bool)
         fg[inside] = mask[ij[inside, 1], ij[inside, 0]]
         seen[sel[inside]] += 1
@@ -183,11 +192,11 @@ def _keep_carved(n: int, draw, ds: Dataset, generator: torch.Generator, max_roun
     """Draw candidate batches (``draw() -> (points, times)``) until `n` pass `carve` (all pass without masks);
     None when none does. A thin hull with fewer survivors reuses them (their scales come out small, which suits
     thin shapes)."""
-    masked = any(v.alpha is not None for v in ds.train)
+    masks = foreground_masks(ds)
     kept_p, kept_t, total = [], [], 0
     for _ in range(max_rounds):
         cand, times = draw()
-        ok = carve(cand, times, ds) if masked else torch.ones(len(cand), dtype=torch.bool)
+        ok = carve(cand, times, ds, masks=masks) if masks else torch.ones(len(cand), dtype=torch.bool)
         kept_p.append(cand[ok])
         kept_t.append(times[ok].float())
         total += int(ok.sum())

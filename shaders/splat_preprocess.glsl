@@ -10,10 +10,14 @@
 // projection (OpenCV camera, Jacobian at x/z, y/z clamped to the image plus (FRUSTUM_CLAMP - 1) tan_fov on each
 // side, + EPS2D px^2, near-plane cull), and its footprint rule: the tiles (TILE_SIZE) of the square box of radius
 // ceil(RADIUS_SIGMAS sqrt(lambda_max)) (EIGEN_FLOOR under the discriminant), intersected with the alpha >=
-// ALPHA_THRESHOLD ellipse, optionally capped (splatreel.viewer.sorting.Footprint).
+// ALPHA_THRESHOLD ellipse, optionally capped (splatreel.viewer.sorting.Footprint). A skinned model (SKINNED 1,
+// splatreel.skinned.SkinnedGaussians.slice): the Gaussian's canonical mean (the conditional mean at mu_t, which the
+// native velocity does not move) and conditional covariance carried by its 4 nodes (splat_skin.glsl), the temporal
+// opacity and the colour native.
 //
 // Compile-time defines (splatreel.viewer.renderer): SH_DEGREE, SH_DEGREE_T, SH_TEXELS (RGBA texels per Gaussian),
-// SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE. Rendering constants come from splatreel.constants.
+// SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE, SKINNED (0 or 1). Rendering constants come from
+// splatreel.constants.
 
 #if defined VERTEX_SHADER
 
@@ -22,6 +26,12 @@ in vec4 a_motion;   // velocity xyz, 1 / (2 Sigma_tt) (0: no temporal fade)
 in vec4 a_accel;    // acceleration xyz (0: linear motion; splatreel.model.Gaussians4D.accelerations), w unused
 in vec4 a_cov_a;    // conditional covariance c00 c01 c02 c11
 in vec4 a_cov_b;    // c12 c22, opacity, speed |d mean / dt|
+#if SKINNED
+in vec4 a_skin_nodes;    // the Gaussian's 4 nodes (indices into u_nodes' rows)
+in vec4 a_skin_weights;  // their blend weights
+uniform float u_skin_step;  // 2 h: the time between pose sets 1 (t - h) and 2 (t + h) of u_nodes
+#include "splat_skin.glsl"
+#endif
 
 uniform mat3 u_rot;         // world -> camera rotation (OpenCV axes)
 uniform vec3 u_trans;       // world -> camera translation
@@ -126,7 +136,12 @@ void main() {
     float factor = u_smooth_fade ? marginal * smoothstep(TEMPORAL_CULL, 2.0 * TEMPORAL_CULL, marginal) : marginal;
     float opacity = a_cov_b.z * factor;
     if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
+#if SKINNED
+    mat3 blend;
+    vec3 mean = skin_carry(a_mean_t.xyz, a_skin_nodes, a_skin_weights, 0, blend);
+#else
     vec3 mean = a_mean_t.xyz + (a_motion.xyz + 0.5 * a_accel.xyz * dt) * dt;  // splatreel.model: mu + v dt + a dt^2/2
+#endif
 
     // --- EWA projection (splat_footprint.glsl) ------------------------------------------------------------------
     vec3 p = u_rot * mean + u_trans;
@@ -135,6 +150,9 @@ void main() {
     mat3 cov = s2 * mat3(a_cov_a.x, a_cov_a.y, a_cov_a.z,
                          a_cov_a.y, a_cov_a.w, a_cov_b.x,
                          a_cov_a.z, a_cov_b.x, a_cov_b.y);
+#if SKINNED
+    cov = blend * cov * transpose(blend);
+#endif
     Footprint f;
     if (!splat_footprint(p, u_rot, cov, opacity, u_intrinsics, u_size, f)) { cull(); return; }
     // the footprint caps (off: 1e30), as sorting._depth_key: std-devs, then pixels along the major axis
@@ -153,8 +171,17 @@ void main() {
     // the time window where the marginal exceeds the cull; capped at the model's span, so that an unfading
     // Gaussian (or a keyframed slice) reads as "throughout" instead of flooding the pixel's average
     // |d mean / dt| at t: the stored speed (a keyframed slice's, kept apart from its zero motion), or with
-    // accelerations |v + a dt|
+    // accelerations |v + a dt|; a skinned Gaussian's carried mean differenced over t -+ h (its slice's velocity)
+#if SKINNED
+    float speed = 0.0;
+    if (u_value == 2) {
+        mat3 unused;
+        speed = length(skin_carry(a_mean_t.xyz, a_skin_nodes, a_skin_weights, 2, unused)
+                       - skin_carry(a_mean_t.xyz, a_skin_nodes, a_skin_weights, 1, unused)) / u_skin_step;
+    }
+#else
     float speed = a_accel.xyz == vec3(0.0) ? a_cov_b.w : length(a_motion.xyz + a_accel.xyz * dt);
+#endif
     float span = a_motion.w > 0.0 ? min(2.0 * sqrt(-log(TEMPORAL_CULL) / a_motion.w), u_duration) : u_duration;
     vec3 rgb = u_value == 0 ? sh_color(mean - u_campos, -dt)
                             : vec3(u_value == 1 ? p.z : u_value == 2 ? speed : u_value == 3 ? span : factor);

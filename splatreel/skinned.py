@@ -104,6 +104,14 @@ def skin_weights(points: Tensor, canonical: Tensor, sigma: float, k: int = NODES
     return idx, (w / w.sum(1, keepdim=True)).to(points.dtype)
 
 
+def padded_skin(skin: tuple[Tensor, Tensor], k: int = NODES_PER_GAUSSIAN) -> tuple[Tensor, Tensor]:
+    """A skin's nodes and weights (``[N, K]`` each) as ``[N, k]`` (`k` >= K): the columns past K (a model of fewer
+    than k nodes) take node 0 at weight 0. The fixed layout of the GPU players (the viewer, the web page)."""
+    nodes, weights = skin
+    pad = (0, k - nodes.shape[1])
+    return torch.nn.functional.pad(nodes, pad), torch.nn.functional.pad(weights, pad)
+
+
 def gather_nodes(x: Tensor, nodes: Tensor) -> Tensor:
     """Rows `nodes` ``[N, K]`` of per-node `x` ``[M, ...]`` -> ``[N, K, ...]``. Through ``index_select``, whose
     gradient is an ``index_add`` that sums in a fixed order: the gradient of ``x[nodes]`` is an accumulating

@@ -1,5 +1,6 @@
-"""Every consumer of models with a skinned model (`SkinnedGaussians`): the viewer's arrays, re-made per displayed
-time; Inspect; baking into keyframes and the web player that plays them; USD; ``info`` and ``convert``."""
+"""Every consumer of models with a skinned model (`SkinnedGaussians`): the viewer's arrays (uploaded once, the node
+poses per displayed time) and its GL image; Inspect; baking into keyframes and the web player that plays them; USD;
+``info`` and ``convert``."""
 
 from __future__ import annotations
 
@@ -12,14 +13,22 @@ import pytest
 import torch
 
 from splatreel.baking import bake_keyframes, keys_and_midpoints, skinned_bake_times
+from splatreel.cameras import orbit
 from splatreel.checkpoint import save_checkpoint
 from splatreel.cli import main
 from splatreel.covariance import condition_on_time, visible_span
+from splatreel.rasterize import rasterize
+from splatreel.skinned import SkinnedGaussians
 from splatreel.summary import model_summary
 from splatreel.viewer.pick import describe, peak_time, vector_text
+from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
+from splatreel.viewer.selection import centres_at
+from splatreel.viewer.skinning import posed
 from splatreel.viewer.splats import needs_per_frame_upload, to_arrays, typical_speed
+from splatreel.viewer.synthetic import synthetic_model
 
 from test_skinned import AXIS, CENTRE, spinning
+from test_viewer_parity import MIN_PSNR, psnr, value_images
 from test_web import geometry_texels
 
 KEYS = 9  # spinning()'s node key times: 0, 1/8, ..., 1
@@ -35,21 +44,37 @@ def checkpoint(model, tmp_path_factory):
     return save_checkpoint(tmp_path_factory.mktemp("skinned") / "spin.safetensors", model.to(dtype=torch.float32))
 
 
-def test_viewer_arrays_are_the_slice_at_the_time_shown(model):
-    assert needs_per_frame_upload(model)
-    a, b = to_arrays(model, 0.25), to_arrays(model, 0.75)
-    assert a.time == 0.25 and b.time == 0.75
-    for arrays, t in ((a, 0.25), (b, 0.75)):
-        g = model.slice(t)
-        np.testing.assert_allclose(arrays.mean_t[:, :3], g.means.numpy(), rtol=1e-5, atol=1e-5)
-        np.testing.assert_allclose(arrays.opacity, np.where(g.visible, g.opacities, 0.0), atol=1e-6)
-        assert not arrays.motion.any()  # the shaders must not move a slice on their own
-    moved = np.linalg.norm(a.mean_t[:, :3] - b.mean_t[:, :3], axis=1)
+def carried_synthetic(model, n: int = 2000, **options) -> SkinnedGaussians:
+    """`synthetic_model`'s native Gaussians (each also moving on its own line, which must not move a skinned one)
+    carried by `model`'s spinning nodes."""
+    native = synthetic_model(n, seed=8, radius=0.6, scale=0.03, **{"sh_degree": 1, **options})
+    return SkinnedGaussians(native, model.node_canonical, model.node_times, model.node_positions,
+                            model.node_rotations, node_sigma=0.4)
+
+
+def test_viewer_arrays_are_the_canonical_gaussians_and_their_skin(model):
+    """Made once, valid at every time: the canonical native Gaussians' arrays and each one's skin. Carried to t on
+    the CPU (`posed`: the sort's and the selection markers' numba twin of `splatreel.skinned.carry`) they are the
+    slice's means and covariances."""
+    assert not needs_per_frame_upload(model)
+    arrays, native = to_arrays(model), to_arrays(model.gaussians)
+    assert arrays.time is None and arrays.attributes().shape == (len(model), 28)
+    np.testing.assert_array_equal(arrays.attributes()[:, :20], native.attributes())
+    nodes, weights = model.skin
+    np.testing.assert_array_equal(arrays.skin.nodes, nodes.numpy())
+    np.testing.assert_allclose(arrays.skin.weights, weights.numpy(), rtol=1e-6)
+    triu = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
+    for t in (0.3, 0.75, 1.2):  # between keys, and past the last one
+        g, at = model.slice(t), posed(arrays, t)
+        np.testing.assert_allclose(at.mean_t[:, :3], g.means.numpy(), rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(at.cov[:, :6], g.covariances[:, triu[0], triu[1]].numpy(), rtol=1e-4, atol=1e-7)
+        assert not at.motion[:, :3].any() and not at.accel.any()  # the sort must not move them again
+        np.testing.assert_allclose(centres_at(arrays, t, np.array([4, 9])), g.means[[4, 9]].numpy(), atol=1e-5)
+    part = arrays.select(np.array([3, 11]))  # a crop keeps each Gaussian's skin
+    np.testing.assert_array_equal(posed(part, 0.4).mean_t, posed(arrays, 0.4).mean_t[[3, 11]])
     radius = torch.linalg.cross(AXIS.expand_as(model.gaussians.means), model.gaussians.means - CENTRE).norm(dim=1)
-    # a quarter turn apart: each Gaussian moves by the chord sqrt(2) r of its circle about the axis
-    np.testing.assert_allclose(moved, math.sqrt(2) * radius.numpy(), rtol=1e-3, atol=1e-5)
     # the speed colour map tops out near the fast end of pi r (half a turn per unit of time), not at 1
-    top = typical_speed(model, a)
+    top = typical_speed(model, arrays)
     assert 0.9 * math.pi * float(radius.quantile(0.9)) < top < 1.01 * math.pi * float(radius.max())
 
 
@@ -151,20 +176,33 @@ def test_info_and_convert_name_the_kind_and_its_nodes(model, checkpoint, tmp_pat
     assert f"skinned, {len(model)} Gaussians" in capsys.readouterr().out
 
 
-def test_gl_draws_the_slice_at_each_time_as_the_rasterizer_does(model):
-    """The renderer re-slices a skinned model when the time changes (it is made at the start of the range)."""
-    from splatreel.cameras import orbit
-    from splatreel.skinned import SkinnedGaussians
-    from splatreel.viewer.synthetic import synthetic_model
-
-    from test_viewer_parity import MIN_PSNR, compare
-
-    small = SkinnedGaussians(synthetic_model(2000, seed=8, sh_degree=1, radius=0.6, scale=0.03), model.node_canonical,
-                             model.node_times, model.node_positions, model.node_rotations, node_sigma=0.4)
+def test_gl_carries_a_skinned_model_on_the_gpu_as_the_rasterizer_draws_its_slice(model):
+    """The renderer uploads the Gaussians once and per displayed time only the node poses, and the pre-pass
+    carries each Gaussian by its nodes: the image is the rasterizer's of `slice(t)` at a node key and between keys
+    (whose Catmull-Rom poses no chord reproduces), and the speed mode composites the slice's velocities."""
+    small = carried_synthetic(model)
     camera = orbit(15, 75, 2.5, fov_deg=45, width=96, height=96)
-    for t in (0.3, 0.8):
-        value, _ = compare(small, camera, t)
-        assert value >= MIN_PSNR, (t, value)
+    background = (0.1, 0.2, 0.3)
+    r = SplatRenderer(headless_context(), small)
+    try:
+        assert not r.per_frame_upload
+        uploaded, images = r._gpu.attrs.read(), []
+        for t in (0.25, 0.8):  # a node key; between keys 0.75 and 0.875
+            r.render(camera, t, RenderSettings(background=background))
+            images.append(r.read_display()[..., :3])
+            with torch.no_grad():
+                ref = rasterize(small.slice(t), camera, background)
+            assert psnr(images[-1], ref.rgb.numpy()) >= MIN_PSNR, t
+            assert float(np.abs(r.read_accumulation()[..., 3] - ref.alpha.numpy()).max()) < 0.02
+            assert r._gpu.nodes_time == t and r._gpu.attrs.read() == uploaded  # only the node texture changed
+        assert psnr(*images) < 25  # the nodes moved the image
+    finally:
+        r.release()
+    t = 0.55
+    speed = torch.linalg.vector_norm(small.slice(t).velocities, dim=-1)
+    acc, _, ref = value_images(small, camera, t, "speed", speed)
+    top = float(speed.max())
+    assert ref.max() > 0.2 * top and psnr(acc[..., 0] / top, ref / top) >= MIN_PSNR
 
 
 def test_exported_frames_keep_each_gaussians_rotation_continuous(model):

@@ -1,6 +1,6 @@
 """The splat renderer's GPU objects, each group made and released together: a model's splats (`SplatBuffers`) and
 the framebuffers of one image size (`RenderTargets`). `SplatRenderer` owns one of each; the shaders they feed are
-``shaders/splat_preprocess.glsl``, ``splat_draw.glsl`` and ``splat_screen.glsl``.
+``shaders/splat_preprocess.glsl``, ``splat_draw.glsl`` and ``splat_screen.glsl``, whose uniforms `set_uniforms` sets.
 """
 
 from __future__ import annotations
@@ -21,6 +21,9 @@ SPLAT_FIELDS = ("i_geom", "i_axes", "i_color", "i_rect")
 SH_TEX_WIDTH = 4096
 #: GL_NEAREST: textures read by texelFetch, or 1:1
 _NEAREST = 0x2600
+#: The pre-pass attributes (vec4 each), in `SplatArrays.attributes` order; a skinned model's two more after them.
+ATTRIBUTES = ("a_mean_t", "a_motion", "a_accel", "a_cov_a", "a_cov_b")
+SKIN_ATTRIBUTES = ("a_skin_nodes", "a_skin_weights")
 
 
 def sh_texture_size(count: int, texels: int, num_coeffs: int, max_size: int) -> tuple[int, int]:
@@ -39,10 +42,11 @@ def sh_texture_size(count: int, texels: int, num_coeffs: int, max_size: int) -> 
 
 @dataclass
 class SplatBuffers:
-    """A model's splats on the GPU: the per-Gaussian attributes (``a_mean_t, a_motion, a_accel, a_cov_a,
-    a_cov_b``: 20 floats) and SH coefficients (an RGBA float texture) the pre-pass reads, the index buffer it reads
-    them through (the draw order), its output (one `SPLAT_BYTES` record per Gaussian, `SPLAT_FIELDS`) and the
-    vertex arrays that draw those records with each splat program."""
+    """A model's splats on the GPU: the per-Gaussian attributes (`ATTRIBUTES`: 20 floats; a skinned model's 8 more,
+    `SKIN_ATTRIBUTES`) and SH coefficients (an RGBA float texture) the pre-pass reads, a skinned model's node
+    texture (`splatreel.viewer.skinning`, rewritten per displayed time), the index buffer it reads them through (the
+    draw order), its output (one `SPLAT_BYTES` record per Gaussian, `SPLAT_FIELDS`) and the vertex arrays that draw
+    those records with each splat program."""
 
     count: int
     attrs: object
@@ -54,17 +58,29 @@ class SplatBuffers:
     pre_prog: object
     #: kind ("quads", "points", "overlay") -> vertex array of `splats` for that kind's program
     splat_vaos: dict
+    #: a skinned model's node texture (None for other models) and the time its poses are for
+    nodes: object = None
+    nodes_time: float | None = None
 
     @classmethod
     def create(cls, ctx, attrs: np.ndarray, sh: np.ndarray, sh_size: tuple[int, int], pre_prog,
-               splat_progs: dict) -> "SplatBuffers":
-        """Upload ``[N, 20]`` float32 `attrs` and the ``[W * H, 4]`` float32 `sh` texels of a `sh_size` (W, H)
-        texture, and make the vertex arrays of the pre-pass program and of each splat program."""
+               splat_progs: dict, node_size: tuple[int, int] | None = None) -> "SplatBuffers":
+        """Upload ``[N, 20]`` float32 `attrs` (``[N, 28]`` with a skin) and the ``[W * H, 4]`` float32 `sh` texels of
+        a `sh_size` (W, H) texture, make a skinned model's node texture of `node_size` (texels per node, nodes), and
+        make the vertex arrays of the pre-pass program and of each splat program."""
         n = len(attrs)
         cap = max(n, 1)
-        attr_buf = ctx.buffer(attrs.tobytes() if n else b"\0" * 80)
+        names = ATTRIBUTES + (SKIN_ATTRIBUTES if node_size is not None else ())
+        attr_buf = ctx.buffer(attrs.tobytes() if n else b"\0" * 16 * len(names))
         sh_tex = ctx.texture(sh_size, 4, sh.tobytes(), dtype="f4")
         sh_tex.filter = (_NEAREST, _NEAREST)
+        nodes = None
+        if node_size is not None:
+            max_size = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
+            if node_size[1] > max_size:
+                raise GLError(f"{node_size[1]:,} control nodes exceed this GPU's texture limit ({max_size})")
+            nodes = ctx.texture(node_size, 4, dtype="f4")
+            nodes.filter = (_NEAREST, _NEAREST)
         indices = ctx.buffer(reserve=4 * cap)
         splats = ctx.buffer(reserve=SPLAT_BYTES * cap)
         splat_vaos = {}
@@ -73,18 +89,25 @@ class SplatBuffers:
             fmt = " ".join("4f" if name in used else "16x" for name in SPLAT_FIELDS)
             fmt += "" if kind == "points" else "/i"  # a quad is one instance of a 4-vertex strip
             splat_vaos[kind] = ctx.vertex_array(prog, [(splats, fmt, *used)])
-        pre_vao = ctx.vertex_array(pre_prog, [(attr_buf, "4f 4f 4f 4f 4f", "a_mean_t", "a_motion", "a_accel", "a_cov_a",
-                                               "a_cov_b")],
+        fmt = " ".join("4f" if name in pre_prog else "16x" for name in names)  # (a skinned program reads no a_accel)
+        pre_vao = ctx.vertex_array(pre_prog, [(attr_buf, fmt, *(name for name in names if name in pre_prog))],
                                    index_buffer=indices, index_element_size=4)
-        return cls(n, attr_buf, sh_tex, indices, splats, pre_vao, pre_prog, splat_vaos)
+        return cls(n, attr_buf, sh_tex, indices, splats, pre_vao, pre_prog, splat_vaos, nodes)
 
     def write(self, attrs: np.ndarray, sh: np.ndarray) -> None:
         """Rewrite the attributes and SH texels in place (as many Gaussians, same layout: a keyframed re-slice)."""
         self.attrs.write(attrs.tobytes())
         self.sh.write(sh.tobytes())
 
+    def pose_nodes(self, keys, t: float) -> None:
+        """Write a skinned model's node poses at `t` (`skinning.NodeKeys.texels` of `keys`) unless already there."""
+        if self.nodes_time != t:
+            self.nodes.write(keys.texels(t).tobytes())
+            self.nodes_time = t
+
     def release(self) -> None:
-        for obj in (*self.splat_vaos.values(), self.pre_vao, self.attrs, self.sh, self.indices, self.splats):
+        extra = () if self.nodes is None else (self.nodes,)
+        for obj in (*self.splat_vaos.values(), self.pre_vao, self.attrs, self.sh, self.indices, self.splats, *extra):
             obj.release()
 
 
@@ -123,3 +146,23 @@ class RenderTargets:
         for obj in (self.accum_fbo, self.mask_fbo, self.display_fbo, self.tiles_fbo, self.accum_tex, self.depth_rb,
                     self.display_tex, self.tiles_tex):
             obj.release()
+
+
+def set_uniforms(prog, **values) -> None:
+    """Set uniforms by name, skipping those the GLSL compiler optimised away (e.g. u_campos at SH degree 0).
+
+    2-D numpy arrays are written as raw float32 bytes (matrices, already column-major); other values are cast to
+    the uniform's own type (int or float, scalar or vector).
+    """
+    for name, value in values.items():
+        if name not in prog:
+            continue
+        uniform = prog[name]
+        if isinstance(value, np.ndarray) and value.ndim == 2:
+            uniform.write(value.astype(np.float32).tobytes())
+            continue
+        cast = int if uniform.fmt.endswith("i") else float
+        if np.ndim(value) == 0:
+            uniform.value = cast(value)
+        else:
+            uniform.value = tuple(cast(v) for v in value)

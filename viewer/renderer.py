@@ -19,7 +19,8 @@ Per frame, three GL passes:
 3. **resolve** (``splat_screen.glsl``): background, depth colour map or alpha view, into the display target
    (an offscreen float texture, or the window).
 
-The per-Gaussian data of a native 4D model is uploaded once; a keyframed model is re-sliced and re-uploaded when t
+The per-Gaussian data of a native 4D or skinned model is uploaded once (a skinned model's node poses, a small
+texture, when t changes: `splatreel.viewer.skinning`); a keyframed model is re-sliced and re-uploaded when t
 changes. The order is recomputed whenever the camera, t or the splat scale changed.
 """
 
@@ -39,9 +40,10 @@ from splatreel.gl import EGLCurrent, create_headless_context, load_program, with
 from . import splats as splatlib
 from .draw_plan import (MIN_HIDEABLE, OCCLUSION_TILE, POINT_MODES, draw_stages, hidden_in_tiles, rescaled_boxes,
                         saturated_table, splat_runs)
-from .gpu_buffers import SPLAT_BYTES, SPLAT_FIELDS, RenderTargets, SplatBuffers, sh_texture_size
+from .gpu_buffers import SPLAT_BYTES, SPLAT_FIELDS, RenderTargets, SplatBuffers, set_uniforms, sh_texture_size
 from .pick import PixelStack, composite_pixel
 from .render_settings import COMPOSITE_ORDERS, RENDER_MODES, VALUE_MODES, FrameStats, RenderSettings
+from .skinning import NODE_TEXELS, POSE_SETS
 from .sorting import Footprint, SortKey, SortResult, depth_order, footprint_caps
 
 # the settings' names come with the renderer's: callers import its whole API from here
@@ -108,8 +110,9 @@ class SplatRenderer:
 
     @with_context
     def set_model(self, model, t: float | None = None, arrays: splatlib.SplatArrays | None = None) -> None:
-        """Use `model` (Gaussians4D, KeyframedGaussians, Gaussians3D or ready `SplatArrays`); `arrays`: its
-        arrays (at `t` for a keyframed model) when already at hand, e.g. `SplatArrays.select` of a larger model's."""
+        """Use `model` (Gaussians4D, KeyframedGaussians, SkinnedGaussians, Gaussians3D or ready `SplatArrays`);
+        `arrays`: its arrays (at `t` for a keyframed model) when at hand, e.g. `SplatArrays.select` of a larger
+        model's."""
         if arrays is None:
             arrays = model if isinstance(model, splatlib.SplatArrays) else splatlib.to_arrays(model, t)
         self._model = model
@@ -143,13 +146,16 @@ class SplatRenderer:
         sh = np.zeros((rows * width, 4), np.float32)
         sh[: n * texels] = arrays.sh.reshape(-1, 4)
         old, gpu = self.splats, self._gpu
+        skinned = arrays.skin is not None
         if (gpu is not None and gpu.count == n and old.sh_texels == texels and gpu.sh.size == (width, rows)
-                and (old.sh_degree, old.sh_degree_t) == (arrays.sh_degree, arrays.sh_degree_t)):
+                and (old.sh_degree, old.sh_degree_t) == (arrays.sh_degree, arrays.sh_degree_t)
+                and not skinned and old.skin is None):
             gpu.write(attrs, sh)  # keyframed re-slice: rewrite in place
         else:
             self._release_model()
-            prog = self._pre_program(arrays.sh_degree, arrays.sh_degree_t, texels, width)
-            self._gpu = SplatBuffers.create(self.ctx, attrs, sh, (width, rows), prog, self._splat_progs)
+            prog = self._pre_program(arrays.sh_degree, arrays.sh_degree_t, texels, width, skinned)
+            node_size = (POSE_SETS * NODE_TEXELS, arrays.skin.keys.count) if skinned else None
+            self._gpu = SplatBuffers.create(self.ctx, attrs, sh, (width, rows), prog, self._splat_progs, node_size)
         self.splats = arrays
 
     def _release_model(self) -> None:
@@ -157,23 +163,26 @@ class SplatRenderer:
             self._gpu.release()
             self._gpu = None
 
-    def _pre_program(self, degree: int, degree_t: int, texels: int, width: int):
-        key = (degree, degree_t, texels, width)
+    def _pre_program(self, degree: int, degree_t: int, texels: int, width: int, skinned: bool = False):
+        key = (degree, degree_t, texels, width, skinned)
         if key not in self._pre_progs:
             self._pre_progs[key] = load_program(
                 self.ctx, "splat_preprocess",
                 {"SH_DEGREE": degree, "SH_DEGREE_T": degree_t, "SH_TEXELS": texels, "SH_TEX_WIDTH": width,
-                 "TILE_SIZE": TILE_SIZE},
+                 "TILE_SIZE": TILE_SIZE, "SKINNED": int(skinned)},
                 varyings=["o_geom", "o_axes", "o_color", "o_rect"], varyings_capture_mode="interleaved")
         return self._pre_progs[key]
 
     @with_context
     def splats_at(self, t: float) -> splatlib.SplatArrays:
-        """The GPU arrays valid at time `t` (re-slices and re-uploads a keyframed model when t changed)."""
+        """The GPU arrays valid at time `t` (re-slices and re-uploads a keyframed model when t changed; a skinned
+        model's node poses alone, `SplatBuffers.pose_nodes`)."""
         if self.splats is None:
             raise GLError("no model loaded")
         if self.per_frame_upload and self.splats.time != float(t):
             self._upload(splatlib.to_arrays(self._model, float(t)))
+        if self.splats.skin is not None:
+            self._gpu.pose_nodes(self.splats.skin.keys, float(t))
         return self.splats
 
     # --- sorting ----------------------------------------------------------------------------------------------
@@ -252,11 +261,11 @@ class SplatRenderer:
         boxes = boxes[::-1] if front_to_back else boxes
         self._set_pre_uniforms(camera, t, settings, splats, footprint)
         for prog in self._splat_progs.values():
-            _set_uniforms(prog, u_size=(camera.width, camera.height), u_height=camera.height,
+            set_uniforms(prog, u_size=(camera.width, camera.height), u_height=camera.height,
                           u_mode=RENDER_MODES.index(settings.mode), u_margin=self._point_margin,
                           u_max_point=self._max_point)
-        _set_uniforms(self._mask_prog, u_accum=0)
-        _set_uniforms(self._tiles_prog, u_accum=0)
+        set_uniforms(self._mask_prog, u_accum=0)
+        set_uniforms(self._tiles_prog, u_accum=0)
         staged = front_to_back and settings.mode in POINT_MODES and \
             order.hideable >= MIN_HIDEABLE
         stages = draw_stages(len(indices)) if staged else [(0, len(indices))]
@@ -351,6 +360,8 @@ class SplatRenderer:
         ctx = self.ctx
         self._gpu.indices.write(idx.tobytes())
         self._gpu.sh.use(0)
+        if self._gpu.nodes is not None:
+            self._gpu.nodes.use(1)
         ctx.disable(ctx.BLEND | ctx.DEPTH_TEST)
         # a draw needs a complete framebuffer even with rasterizer discard (an EGL context has none of its own)
         self._targets.accum_fbo.use()
@@ -370,13 +381,14 @@ class SplatRenderer:
         w2c = camera.w2c
         degree = splats.sh_degree if settings.sh_degree is None else max(0, min(int(settings.sh_degree),
                                                                                  splats.sh_degree))
-        _set_uniforms(self._gpu.pre_prog, u_rot=np.ascontiguousarray(w2c[:3, :3].T, np.float32),  # column-major
+        set_uniforms(self._gpu.pre_prog, u_rot=np.ascontiguousarray(w2c[:3, :3].T, np.float32),  # column-major
                       u_trans=w2c[:3, 3], u_campos=camera.position,
                       u_intrinsics=(camera.fx, camera.fy, camera.cx, camera.cy),
                       u_size=(camera.width, camera.height), u_time=t, u_duration=splats.duration,
                       u_scale=footprint.scale, u_max_radius=footprint_caps(footprint, camera.height),
                       u_near=footprint.near_plane, u_smooth_fade=settings.temporal_fade == "smooth",
-                      u_sh_degree=degree, u_sh=0,
+                      u_sh_degree=degree, u_sh=0, u_nodes=1,
+                      u_skin_step=2.0 * splats.skin.keys.step if splats.skin is not None else 1.0,
                       u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 
     def _resolve(self, settings: RenderSettings, value_range, target, viewport) -> None:
@@ -389,7 +401,7 @@ class SplatRenderer:
         # nearest 1:1 (the exact image), linear when stretched over a larger or smaller viewport (splat_screen.glsl)
         tg.accum_tex.filter = (0x2600, 0x2600) if tuple(viewport[2:]) == tg.size else (0x2601, 0x2601)
         bg_alpha = 0.0 if settings.transparent else 1.0
-        _set_uniforms(self._resolve_prog, u_accum=0, u_viewport=viewport, u_mode=RENDER_MODES.index(settings.mode),
+        set_uniforms(self._resolve_prog, u_accum=0, u_viewport=viewport, u_mode=RENDER_MODES.index(settings.mode),
                       u_background=tuple(float(c) * bg_alpha for c in settings.background) + (bg_alpha,),
                       u_value_range=value_range)
         self._resolve_vao.render(self.ctx.TRIANGLES, vertices=3)
@@ -449,26 +461,6 @@ class SplatRenderer:
             self._targets.release()
             self._targets = None
 
-
-
-def _set_uniforms(prog, **values) -> None:
-    """Set uniforms by name, skipping those the GLSL compiler optimised away (e.g. u_campos at SH degree 0).
-
-    2-D numpy arrays are written as raw float32 bytes (matrices, already column-major); other values are cast to
-    the uniform's own type (int or float, scalar or vector).
-    """
-    for name, value in values.items():
-        if name not in prog:
-            continue
-        uniform = prog[name]
-        if isinstance(value, np.ndarray) and value.ndim == 2:
-            uniform.write(value.astype(np.float32).tobytes())
-            continue
-        cast = int if uniform.fmt.endswith("i") else float
-        if np.ndim(value) == 0:
-            uniform.value = cast(value)
-        else:
-            uniform.value = tuple(cast(v) for v in value)
 
 
 _HEADLESS: dict[str, object] = {}

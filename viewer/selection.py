@@ -19,6 +19,7 @@ import numpy as np
 
 from splatreel.cameras import Camera
 
+from .skinning import posed
 from .sorting import SortResult
 from .splats import SplatArrays
 
@@ -47,10 +48,12 @@ def in_rect(order: SortResult, rect: tuple[float, float, float, float]) -> np.nd
 
 def centres_at(splats: SplatArrays, t: float, indices: np.ndarray) -> np.ndarray:
     """``[M, 3]`` centres at time `t` of Gaussians `indices` of `splats` (the conditional mean, moving in t with its
-    velocity and acceleration; a keyframed slice has no motion and stays where it was sliced)."""
-    m = splats.mean_t[indices]
+    velocity and acceleration; a skinned model's carried by its nodes, `skinning.posed`; a keyframed slice has no
+    motion and stays where it was sliced)."""
+    chosen = posed(splats.select(indices), t)
+    m = chosen.mean_t
     dt = t - m[:, 3:4].astype(np.float64)
-    return m[:, :3].astype(np.float64) + (splats.motion[indices, :3] + 0.5 * splats.accel[indices, :3] * dt) * dt
+    return m[:, :3].astype(np.float64) + (chosen.motion[:, :3] + 0.5 * chosen.accel[:, :3] * dt) * dt
 
 
 def marker_segments(points: np.ndarray, camera: Camera, pixels: float = 4.0) -> np.ndarray:

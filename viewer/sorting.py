@@ -1,13 +1,14 @@
 """Back-to-front order of the Gaussians **at time t** (never of their static positions).
 
-The depth of Gaussian i at time t is the camera-space z of its conditional mean mu_i + v_i (t - mu_t,i), the same
-point the vertex shader projects. A Gaussian is dropped from the order (not drawn at all) when it cannot cover a
-pixel at this (camera, t): its temporal marginal is <= TEMPORAL_CULL, its opacity times that marginal is below
-ALPHA_THRESHOLD, its mean is at or in front of the near plane (`Footprint.near_plane`, NEAR_PLANE by default), or a
-conservative bound of its footprint misses the image. Survivors are argsorted by decreasing depth. Each also gets
-its screen box (from its projected 2D covariance, computed as splat_preprocess.glsl and the trainer's rasterizer do,
-its opacity at t and the `Footprint` caps), which the renderer uses to skip Gaussians hidden behind pixels that are
-already opaque and to choose between point and quad splats.
+The depth of Gaussian i at time t is the camera-space z of its conditional mean mu_i + v_i (t - mu_t,i) (a skinned
+model's: its canonical mean carried by its nodes), the same point the vertex shader projects. A Gaussian is dropped
+from the order (not drawn at all) when it cannot cover a pixel at this (camera, t): its temporal marginal is <=
+TEMPORAL_CULL, its opacity times that marginal is below ALPHA_THRESHOLD, its mean is at or in front of the near
+plane (`Footprint.near_plane`, NEAR_PLANE by default), or a conservative bound of its footprint misses the image.
+Survivors are argsorted by decreasing depth. Each also gets its screen box (from its projected 2D covariance,
+computed as splat_preprocess.glsl and the trainer's rasterizer do, its opacity at t and the `Footprint` caps), which
+the renderer uses to skip Gaussians hidden behind pixels that are already opaque and to choose between point and
+quad splats.
 
 `depth_order` is a fused numba key kernel plus a numba radix sort; both release the GIL, so the desktop app sorts
 in a worker thread with the serial kernel (not competing with the rasterizer threads of a software GL), while a
@@ -30,6 +31,7 @@ from splatreel.cameras import Camera
 from splatreel.constants import (ALPHA_THRESHOLD, EPS2D, FRUSTUM_CLAMP, MAX_ALPHA, NEAR_PLANE, TEMPORAL_CULL,
                                TRANSMITTANCE_THRESHOLD)
 
+from .skinning import posed
 from .splats import SplatArrays
 
 #: Tile edge (pixels) over which `hideable_fraction` sums optical depth.
@@ -261,8 +263,10 @@ def _depth_keys_parallel(mean_t, motion, accel, cov, view, t, width, height, sca
 def depth_order(splats: SplatArrays, camera: Camera, t: float, footprint: Footprint = Footprint(),
                 parallel: bool = False) -> SortResult:
     """Sort the drawable Gaussians of `splats` back to front at time `t` (see module doc), drawn with `footprint`;
-    `parallel` computes the keys on all cores (the same result)."""
+    `parallel` computes the keys on all cores (the same result). A skinned model's Gaussians are first carried to
+    `t` by their nodes (`skinning.posed`)."""
     start = time.perf_counter()
+    splats = posed(splats, t)
     n = len(splats)
     neg = np.empty(n, np.float32)
     boxes = np.empty((n, 6), np.float32)

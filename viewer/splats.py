@@ -3,9 +3,10 @@
 A native 4D model is converted **once**: everything that does not depend on t (the conditional covariance, the
 velocity of the conditional mean, the temporal variance; `splatreel.covariance.condition_on_time`) is computed here
 on the CPU, and the vertex shader only evaluates the t-dependent part each frame (mean moving in t, linearly or with
-the model's accelerations, temporal opacity factor and its cull, SH with the cosine time terms). A keyframed model
-has no closed form in t, nor has a skinned one (`SkinnedGaussians`, moved by its control nodes), so its slice at t
-(`KeyframedGaussians.slice`, `SkinnedGaussians.slice`) is converted instead, once per displayed time.
+the model's accelerations, temporal opacity factor and its cull, SH with the cosine time terms). A skinned model
+(`SkinnedGaussians`, carried by its control nodes) is its canonical native Gaussians in the same layout plus each
+one's skin (`splatreel.viewer.skinning`: only its node poses change with t). A keyframed model has no closed form in
+t, so its slice at t (`KeyframedGaussians.slice`) is converted instead, once per displayed time.
 
 Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coefficients)::
 
@@ -19,6 +20,7 @@ Layout (float32, N Gaussians, M = (sh_degree+1)^2 (sh_degree_t+1) colour coeffic
                     speed does not move it)
     sh      [N, S]  the M x 3 colour coefficients flattened coefficient-major (r g b of coefficient 0, then 1, ...)
                     and zero-padded to S = 4 * ceil(3 M / 4) floats (whole RGBA texels)
+    skin    [N, 8]  skinned models only (`skinning.SkinArrays`): 4 node indices, 4 blend weights
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ from splatreel.covariance import condition_on_time
 from splatreel.errors import ModelError
 from splatreel.model import Gaussians3D, Gaussians4D, KeyframedGaussians
 from splatreel.skinned import SkinnedGaussians
+
+from .skinning import SkinArrays
 
 _COV_TRIU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
@@ -49,8 +53,9 @@ class SplatArrays:
         sh_degree_t: number of cosine time terms beyond the constant one (0..2).
         duration: T = t1 - t0, the period scale of the time terms.
         time_range: (t0, t1) of the source model.
-        time: the time a slice (keyframed, skinned, 3D) was taken at, the only time its arrays are valid at (None for
-            native 4D arrays, valid at every t).
+        time: the time a slice (keyframed, 3D) was taken at, the only time its arrays are valid at (None for
+            native 4D and skinned arrays, valid at every t).
+        skin: a skinned model's skin and nodes (None for the others).
     """
 
     mean_t: np.ndarray
@@ -63,6 +68,7 @@ class SplatArrays:
     duration: float
     time_range: tuple[float, float]
     time: float | None = None
+    skin: SkinArrays | None = None
 
     def __len__(self) -> int:
         return self.mean_t.shape[0]
@@ -86,17 +92,20 @@ class SplatArrays:
         return self.cov[:, 7]
 
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.mean_t, self.motion, self.accel, self.cov, self.sh))
+        skin = (self.skin.nodes, self.skin.weights) if self.skin is not None else ()
+        return sum(a.nbytes for a in (self.mean_t, self.motion, self.accel, self.cov, self.sh, *skin))
 
     def select(self, mask: np.ndarray) -> "SplatArrays":
         """The arrays of the Gaussians where `mask` (``[N]`` bool or indices) holds: the same as converting
         ``model.select(mask)``, without converting again (a gather, ~10x faster)."""
         return replace(self, mean_t=self.mean_t[mask], motion=self.motion[mask], accel=self.accel[mask],
-                       cov=self.cov[mask], sh=self.sh[mask])
+                       cov=self.cov[mask], sh=self.sh[mask], skin=None if self.skin is None else self.skin.select(mask))
 
     def attributes(self) -> np.ndarray:
-        """``[N, 20]`` float32: the per-instance attributes the pre-pass reads (mean_t, motion, accel, cov)."""
-        return np.concatenate([self.mean_t, self.motion, self.accel, self.cov], axis=1).astype(np.float32)
+        """``[N, 20]`` float32 (``[N, 28]`` with a skin): the per-instance attributes the pre-pass reads (mean_t,
+        motion, accel, cov, and the skin's nodes and weights)."""
+        skin = [] if self.skin is None else [self.skin.columns()]
+        return np.concatenate([self.mean_t, self.motion, self.accel, self.cov, *skin], axis=1).astype(np.float32)
 
 
 def _np32(x: torch.Tensor) -> np.ndarray:
@@ -172,9 +181,16 @@ def from_gaussians3d(g: Gaussians3D, time: float, time_range: tuple[float, float
     return out
 
 
+def from_skinned(model: SkinnedGaussians) -> SplatArrays:
+    """Time-independent arrays of a skinned model: its canonical native Gaussians' (`from_gaussians4d`) and its skin.
+    Their speed column is the native one, which does not move a skinned Gaussian: the speed mode differences the
+    carried means instead (`skinning` module doc)."""
+    return replace(from_gaussians4d(model.gaussians), skin=SkinArrays.of(model))
+
+
 def from_slice(model, t: float) -> SplatArrays:
-    """Arrays of a model's slice at `t`, for models without a closed form in t the shaders know (keyframed,
-    skinned): re-made whenever the displayed time changes."""
+    """Arrays of a model's slice at `t`, for models without a closed form in t the shaders know (keyframed; any
+    model with ``slice``): re-made whenever the displayed time changes."""
     with torch.no_grad():
         return from_gaussians3d(model.slice(float(t)), float(t), model.time_range)
 
@@ -217,17 +233,20 @@ def _sampled_speeds(model, times: np.ndarray) -> np.ndarray:
 
 
 def needs_per_frame_upload(model) -> bool:
-    """True for models whose GPU data must be re-made when t changes (keyframed, skinned), False for native 4D."""
-    return isinstance(model, (KeyframedGaussians, SkinnedGaussians))
+    """True for models whose per-Gaussian GPU data must be re-made when t changes (keyframed), False for native 4D
+    and skinned ones (whose node poses alone change)."""
+    return isinstance(model, KeyframedGaussians)
 
 
 def to_arrays(model, t: float | None = None) -> SplatArrays:
-    """Arrays for any model: native 4D (valid for all t), keyframed or skinned (slice at `t`, default the start of
+    """Arrays for any model: native 4D or skinned (valid for all t), keyframed (slice at `t`, default the start of
     its time range) or a `Gaussians3D`."""
     if isinstance(model, Gaussians4D):
         return from_gaussians4d(model)
+    if isinstance(model, SkinnedGaussians):
+        return from_skinned(model)
     t0 = float(model.time_range[0]) if hasattr(model, "time_range") else 0.0
-    if isinstance(model, (KeyframedGaussians, SkinnedGaussians)):
+    if isinstance(model, KeyframedGaussians):
         return from_slice(model, t0 if t is None else t)
     if isinstance(model, Gaussians3D):
         return from_gaussians3d(model, 0.0 if t is None else t)

@@ -1,5 +1,6 @@
-"""``splatreel export web``: a static WebGL2 player of the whole model (``index.html`` + ``shaders.js`` + ``player.js`` +
-``splats.bin``, or one self-contained HTML file with ``--single-file``). No build step, no network at view time.
+"""``splatreel export web``: a static WebGL2 player of the whole model (``index.html`` + ``shaders.js`` +
+``skinning.js`` + ``player.js`` + ``splats.bin``, or one self-contained HTML file with ``--single-file``). No build
+step, no network at view time.
 
 The page evaluates the model at time t on the GPU exactly as the desktop renderer does (`splatreel.viewer.renderer`,
 ``shaders/splat_preprocess.glsl`` and ``splat_draw.glsl``, constants from `splatreel.constants` written into the
@@ -16,9 +17,12 @@ data file):
   (`splatreel.sh.collapse_time`), + 0.5 clamped at 0;
 * keyframed: every key's means, rotations, scales, opacities and SH; the page interpolates between the two keys
   around t as `KeyframedGaussians.slice` does (lerp, slerp along the shorter arc; held outside the keys);
-* skinned (`splatreel.skinned.SkinnedGaussians`, moved by control nodes; no closed form the page knows): baked to
-  keyframes (`splatreel.baking`) at its node key times and the mid-points between them, and played as keyframed
-  (the header's ``baked_from`` says ``skinned``).
+* skinned (`splatreel.skinned.SkinnedGaussians`): the canonical native 4D Gaussians as above (without
+  accelerations, which do not move them), each one's skin (4 nodes and weights) and the control nodes' keys. Per
+  displayed time the page computes the M node poses as `splatreel.skinned.node_poses` does (``skinning.js``:
+  Catmull-Rom positions, normalised lerp of the rotations, the end poses held outside the keys) into a small float
+  texture, and the vertex shader carries each native Gaussian's canonical mean and conditional covariance by its
+  nodes (linear blend skinning, SC-GS, Huang et al. CVPR 2024: ``shaders/splat_skin.glsl``, the desktop one).
 
 Projection as the trainer's rasterizer: EWA Jacobian at the clamped x/z, y/z, + EPS2D px^2, near-plane cull, alpha
 clamped at MAX_ALPHA and cut where it falls below ALPHA_THRESHOLD, inside the reference's tile rectangle. The page
@@ -28,22 +32,28 @@ whenever the view or t changes, and blends premultiplied colour with "over".
 ``splats.bin`` layout (little-endian): the 4 bytes ``SRWB``, u32 L, L bytes of UTF-8 JSON (`_header`: what the
 model is, the constants, the camera to start from, and each array's byte offset after the header, type and shape),
 then the arrays, each starting on a 16-byte boundary: ``geom``, ``geom_texels`` RGBA texels per Gaussian (and key),
-and ``sh``, the colour coefficients (coefficient-major r g b, zero-padded to whole texels). The geometry texels:
+and ``sh``, the colour coefficients (coefficient-major r g b, zero-padded to whole texels); a skinned model's
+``node_canonical`` ``[M, 3]``, ``node_positions`` ``[F, M, 3]`` and ``node_rotations`` ``[F, M, 4]`` (w first,
+unnormalised) follow as float32 (``node_count`` M and ``node_times`` [F] are in the header). The geometry texels:
 
-==========  ==========================================  ==============================================
-texel       native 4D                                   keyframed (one row per key and Gaussian)
-==========  ==========================================  ==============================================
-0           mu_x (xyz), mu_t                            mean (xyz), opacity
-1           v = Σ_xt / Σ_tt (xyz), 1 / (2 Σ_tt)         0
-2           rotation (w, x, y, z)                       rotation (w, x, y, z)
-3           scales (xyz), sigmoid(o)                    scales (xyz), 0
-4           acceleration (xyz), 0: only when            (none)
-            ``geom_texels`` is 5
-==========  ==========================================  ==============================================
+=====  ==============================  ===============================  ==================================
+texel  native 4D                       skinned                          keyframed (a row per key and
+                                                                        Gaussian)
+=====  ==============================  ===============================  ==================================
+0      mu_x (xyz), mu_t                canonical mean mu_x (xyz), mu_t  mean (xyz), opacity
+1      v = Σ_xt / Σ_tt (xyz),          v (unused), 1 / (2 Σ_tt)         0
+       1 / (2 Σ_tt)
+2      rotation (w, x, y, z)           rotation (w, x, y, z)            rotation (w, x, y, z)
+3      scales (xyz), sigmoid(o)        scales (xyz), sigmoid(o)         scales (xyz), 0
+4      acceleration (xyz), 0: only     4 node indices                   (none)
+       when ``geom_texels`` is 5
+5      (none)                          their 4 blend weights            (none)
+=====  ==============================  ===============================  ==================================
 
-``geom_texels`` is 5 for a native model with non-zero accelerations and 4 otherwise (linear native models and
-keyframed ones keep the 4-texel layout and size). ``--quantize`` stores the geometry as half floats and the colour
-coefficients as 8 bits per value with a per-texel-slot linear range (``lo + step * byte``).
+``geom_texels`` is 5 for a native model with non-zero accelerations, 6 for a skinned one and 4 otherwise (linear
+native models and keyframed ones keep the 4-texel layout and size). ``--quantize`` stores the geometry as half
+floats (node indices exact up to 2048 nodes) and the colour coefficients as 8 bits per value with a per-texel-slot
+linear range (``lo + step * byte``); the node keys stay float32.
 """
 
 from __future__ import annotations
@@ -65,14 +75,16 @@ from .base import ExportError, resolve_up_axis
 
 MAGIC = b"SRWB"
 DATA_NAME = "splats.bin"
-#: the page's scripts, in loading order: the shaders, then the player that compiles them
-SCRIPT_NAMES = ("shaders.js", "player.js")
+#: the page's scripts, in loading order: the shaders and the node poses, then the player that uses them
+SCRIPT_NAMES = ("shaders.js", "skinning.js", "player.js")
 #: texels per row of the data textures (WebGL2 guarantees MAX_TEXTURE_SIZE >= 2048; SwiftShader and GPUs give more)
 TEXTURE_WIDTH = 2048
 #: --single-file refuses models whose data is larger than this (base64 in an HTML file grows by 4/3)
 SINGLE_FILE_LIMIT = 64 * 2**20
 #: the largest finite half float: 1 / (2 Sigma_tt) is clamped to it when quantized
 HALF_MAX = 65504.0
+#: half floats hold every integer up to this: the most nodes a quantized skinned model's indices can name
+HALF_INTEGERS = 2048
 
 
 def _decompose(cov3):
@@ -97,53 +109,77 @@ def _sh_slots(coeffs: np.ndarray, degree: int, degree_t: int, keep: int) -> np.n
 
 def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
     """(geometry ``[rows, T texels, 4]``, SH ``[rows, S]`` before degree lowering, model fields of the header);
-    T = 5 for a native model with non-zero accelerations, else 4 (see module doc)."""
+    T = 5 for a native model with non-zero accelerations, 6 for a skinned one, else 4 (see module doc)."""
     import torch
 
     if model.kind == "gaussians4d":
-        from splatreel.covariance import condition_on_time
+        return _native_geometry(model)
+    if model.kind == "skinned":  # the canonical native Gaussians and their skin; the node keys go to _node_arrays
+        from splatreel.skinned import padded_skin
 
-        with torch.no_grad():
-            m = model.detach().to(device="cpu", dtype=torch.float64)
-            cov3, velocity, var_t = condition_on_time(m.covariance_4d())
-            scales, quats = _decompose(cov3)
-            n = len(m)
-            accelerated = m.accelerations is not None and bool((m.accelerations != 0).any())
-            geom = np.zeros((n, 5 if accelerated else 4, 4), np.float64)
-            geom[:, 0, :3], geom[:, 0, 3] = m.means.numpy(), m.t_means.numpy()
-            geom[:, 1, :3], geom[:, 1, 3] = velocity.numpy(), 0.5 / var_t.numpy()
-            geom[:, 2] = quats
-            geom[:, 3, :3], geom[:, 3, 3] = scales, m.opacities.numpy()
-            if accelerated:
-                geom[:, 4, :3] = m.accelerations.numpy()
-            sh = m.sh_coeffs.numpy()
-        fields = {"kind": "gaussians4d", "count": n, "keys": 1, "key_times": [], "geom_texels": geom.shape[1],
-                  "sh_degree": m.sh_degree, "sh_degree_t": m.sh_degree_t, "duration": float(m.duration)}
-    elif model.kind in ("keyframed", "skinned"):
-        m = model
-        if model.kind == "skinned":  # the page has no node skinning: its keys, arcs followed by the mid-points
-            from splatreel.baking import bake_keyframes, skinned_bake_times
-
-            m = bake_keyframes(model, skinned_bake_times(model))
-        with torch.no_grad():
-            m = m.to(device="cpu", dtype=torch.float64)
-            f, n = m.num_frames, len(m)
-            geom = np.zeros((f, n, 4, 4), np.float64)
-            geom[:, :, 0, :3], geom[:, :, 0, 3] = m.means.numpy(), m.opacities.numpy()
-            geom[:, :, 2] = m.quats.numpy()
-            geom[:, :, 3, :3] = m.scales.numpy()
-            geom = geom.reshape(f * n, 4, 4)
-            sh = m.sh.numpy().reshape(f * n, -1, 3)
-        t0, t1 = m.time_range
-        fields = {"kind": "keyframed", "count": n, "keys": f, "key_times": m.times.tolist(), "geom_texels": 4,
-                  "sh_degree": m.sh_degree, "sh_degree_t": 0, "duration": float(t1 - t0) or 1.0}
-        if model.kind != "keyframed":
-            fields["baked_from"] = model.kind
-    else:
+        geom, sh, fields = _native_geometry(model.gaussians, skin=padded_skin(model.skin))
+        return geom, sh, {**fields, "kind": "skinned", "node_count": model.num_nodes,
+                          "node_times": model.node_times.tolist()}
+    if model.kind != "keyframed":
         raise ExportError(f"export web plays native 4D, keyframed and skinned models, not a {model.kind} model")
+    with torch.no_grad():
+        m = model.to(device="cpu", dtype=torch.float64)
+        f, n = m.num_frames, len(m)
+        geom = np.zeros((f, n, 4, 4), np.float64)
+        geom[:, :, 0, :3], geom[:, :, 0, 3] = m.means.numpy(), m.opacities.numpy()
+        geom[:, :, 2] = m.quats.numpy()
+        geom[:, :, 3, :3] = m.scales.numpy()
+        geom = geom.reshape(f * n, 4, 4)
+        sh = m.sh.numpy().reshape(f * n, -1, 3)
+    t0, t1 = m.time_range
+    fields = {"kind": "keyframed", "count": n, "keys": f, "key_times": m.times.tolist(), "geom_texels": 4,
+              "sh_degree": m.sh_degree, "sh_degree_t": 0, "duration": float(t1 - t0) or 1.0}
+    return _finite(geom, sh), sh, fields
+
+
+def _native_geometry(model, skin=None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """`_geometry` of a native 4D model; with `skin` (its ``[N, 4]`` nodes and weights: a skinned model's canonical
+    Gaussians) two texels of them instead of the accelerations, which do not move a skinned Gaussian."""
+    import torch
+
+    from splatreel.covariance import condition_on_time
+
+    with torch.no_grad():
+        m = model.detach().to(device="cpu", dtype=torch.float64)
+        cov3, velocity, var_t = condition_on_time(m.covariance_4d())
+        scales, quats = _decompose(cov3)
+        n = len(m)
+        accelerated = skin is None and m.accelerations is not None and bool((m.accelerations != 0).any())
+        geom = np.zeros((n, 6 if skin is not None else 5 if accelerated else 4, 4), np.float64)
+        geom[:, 0, :3], geom[:, 0, 3] = m.means.numpy(), m.t_means.numpy()
+        geom[:, 1, :3], geom[:, 1, 3] = velocity.numpy(), 0.5 / var_t.numpy()
+        geom[:, 2] = quats
+        geom[:, 3, :3], geom[:, 3, 3] = scales, m.opacities.numpy()
+        if accelerated:
+            geom[:, 4, :3] = m.accelerations.numpy()
+        if skin is not None:
+            geom[:, 4], geom[:, 5] = (x.detach().to("cpu", torch.float64).numpy() for x in skin)
+        sh = m.sh_coeffs.numpy()
+    fields = {"kind": "gaussians4d", "count": n, "keys": 1, "key_times": [], "geom_texels": geom.shape[1],
+              "sh_degree": m.sh_degree, "sh_degree_t": m.sh_degree_t, "duration": float(m.duration)}
+    return _finite(geom, sh), sh, fields
+
+
+def _finite(geom: np.ndarray, sh: np.ndarray) -> np.ndarray:
     if not (np.isfinite(geom).all() and np.isfinite(sh).all()):
         raise ExportError("the model has NaN or infinite values (bad covariances or temporal scales)")
-    return geom, sh, fields
+    return geom
+
+
+def _node_arrays(model) -> dict[str, np.ndarray]:
+    """A skinned model's node keys as float32 arrays (none for other models): canonical positions ``[M, 3]``, key
+    positions ``[F, M, 3]`` and rotations ``[F, M, 4]`` (w first, unnormalised); the key times are in the header."""
+    import torch
+
+    if model.kind != "skinned":
+        return {}
+    return {name: getattr(model, name).detach().to("cpu", torch.float32).numpy()
+            for name in ("node_canonical", "node_positions", "node_rotations")}
 
 
 def _texture(values: np.ndarray, dtype) -> tuple[np.ndarray, list[int]]:
@@ -188,6 +224,9 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
     sh = _sh_slots(sh, fields["sh_degree"], fields["sh_degree_t"], degree)
     fields["sh_degree"] = degree
     arrays: dict[str, tuple[np.ndarray, dict]] = {}
+    if quantize and fields.get("node_count", 0) > HALF_INTEGERS:
+        raise ExportError(f"--quantize stores node indices as half floats, exact up to {HALF_INTEGERS} nodes; this "
+                          f"model has {fields['node_count']} (export without --quantize)")
     if quantize:
         g = geom.copy()
         g[..., 1, 3] = np.minimum(g[..., 1, 3], HALF_MAX)
@@ -201,6 +240,8 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
         arrays["geom"] = (image, {"type": "f32", "size": size})
         image, size = _texture(sh, np.float32)
         arrays["sh"] = (image, {"type": "f32", "size": size})
+    for name, values in _node_arrays(model).items():  # float32 even with --quantize
+        arrays[name] = (values, {"type": "f32", "shape": list(values.shape)})
     header = {"format": "splatreel-web", "version": 1, "title": title, **fields,
               "time_range": [float(x) for x in model.time_range], "sh_texels": sh.shape[1] // 4,
               "background": [float(c) for c in background], "up": up_axis.lower(),
@@ -222,13 +263,14 @@ def web_data(model, *, sh_degree: int | None = None, quantize: bool = False, bac
 
 
 def _asset(name: str) -> str:
-    """A file of the player; ``shaders.js`` gets the desktop renderer's footprint code in its vertex shader and its
-    splat alpha in its fragment shader (one copy of each in GLSL: shaders/splat_footprint.glsl, splat_alpha.glsl)."""
+    """A file of the player; ``shaders.js`` gets the desktop renderer's footprint and skinning code in its vertex
+    shader and its splat alpha in its fragment shader (one copy of each in GLSL: shaders/splat_footprint.glsl,
+    splat_skin.glsl, splat_alpha.glsl)."""
     text = resources.files("splatreel.export").joinpath("web_player", name).read_text(encoding="utf-8")
     if name == "shaders.js":
         from splatreel.gl import shader_source
 
-        for part in ("splat_footprint", "splat_alpha"):
+        for part in ("splat_footprint", "splat_alpha", "splat_skin"):
             text = text.replace(f"/*{part.upper()}*/", shader_source(part).replace("`", "'"))
     return text
 

@@ -3,14 +3,16 @@
 // mean x with covariance cov, skinned to nodes k with weights w_k, is carried by its nodes' poses (p_k, R_k) at
 // time t (c_k: node k's canonical position) to
 //     mean' = sum_k w_k (R_k (x - c_k) + p_k),    cov' = B cov B^T,  B = sum_k w_k R_k.
-// Included by the desktop pre-pass (splat_preprocess.glsl); no #version: it is a part of that program.
+// Shared by the desktop pre-pass (splat_preprocess.glsl) and the web player (export/web_player/shaders.js); no
+// #version: it is a part of those programs.
 // u_nodes holds node k in row k, NODE_TEXELS (4) RGBA texels per pose set: R_k's rows 0-2 with p_k's x, y, z in w,
-// then c_k; the CPU computes the poses at t (splatreel.skinned.node_poses).
+// then c_k; the CPU computes the poses at t (splatreel.skinned.node_poses; the page's skinning.js).
 uniform highp sampler2D u_nodes;
 
 // The carried mean of canonical mean `x` (nodes: 4 indices as floats, weights: 4 blend weights) by pose set `set`;
 // `blend` receives B.
 vec3 skin_carry(vec3 x, vec4 nodes, vec4 weights, int set, out mat3 blend) {
+    weights /= dot(weights, vec4(1.0));  // they sum to 1 already; again after half-float storage (web --quantize)
     vec3 moved = vec3(0.0);
     blend = mat3(0.0);
     for (int k = 0; k < 4; ++k) {

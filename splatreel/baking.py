@@ -1,9 +1,10 @@
 """Baking a model into keyframes: `KeyframedGaussians` that reproduce ``model.slice(t)`` at chosen key times.
 
-For consumers that know only the closed-form motion of native 4D Gaussians and the keys of a keyframed model (the
-web player's two layouts): a model whose motion is neither, such as skinned Gaussians
-(`splatreel.skinned.SkinnedGaussians`, carried by control nodes as in SC-GS, Huang et al., CVPR 2024), is
-exported as its keys. `bake_keyframes` works for any model with ``slice(t)``; at each key time it stores
+For consumers that know only the closed-form motion of native 4D Gaussians and the keys of a keyframed model: a
+model whose motion is neither, such as skinned Gaussians (`splatreel.skinned.SkinnedGaussians`, carried by control
+nodes as in SC-GS, Huang et al., CVPR 2024), can be handed to them as its keys. (The viewer and the web player carry
+skinned Gaussians themselves; nothing in the package bakes them any more, the Python API still can.)
+`bake_keyframes` works for any model with ``slice(t)``; at each key time it stores
 
 * the slice's means;
 * the scales and rotations of its covariances (`splatreel.covariance.decompose_covariance_3d`), each rotation

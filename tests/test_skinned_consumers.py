@@ -1,6 +1,6 @@
 """Every consumer of models with a skinned model (`SkinnedGaussians`): the viewer's arrays (uploaded once, the node
-poses per displayed time) and its GL image; Inspect; baking into keyframes and the web player that plays them; USD;
-``info`` and ``convert``."""
+poses per displayed time) and its GL image; Inspect; baking into keyframes; the web player, which carries the
+Gaussians on the GPU as the viewer does; USD; ``info`` and ``convert``."""
 
 from __future__ import annotations
 
@@ -13,12 +13,13 @@ import pytest
 import torch
 
 from splatreel.baking import bake_keyframes, keys_and_midpoints, skinned_bake_times
-from splatreel.cameras import orbit
+from splatreel.cameras import look_at, orbit
 from splatreel.checkpoint import save_checkpoint
 from splatreel.cli import main
 from splatreel.covariance import condition_on_time, visible_span
+from splatreel.export.web import web_data, write_web
 from splatreel.rasterize import rasterize
-from splatreel.skinned import SkinnedGaussians
+from splatreel.skinned import SkinnedGaussians, node_poses
 from splatreel.summary import model_summary
 from splatreel.viewer.pick import describe, peak_time, vector_text
 from splatreel.viewer.renderer import RenderSettings, SplatRenderer, headless_context
@@ -29,7 +30,8 @@ from splatreel.viewer.synthetic import synthetic_model
 
 from test_skinned import AXIS, CENTRE, spinning
 from test_viewer_parity import MIN_PSNR, psnr, value_images
-from test_web import geometry_texels
+from test_web import BACKGROUND, browser, check_page, geometry_texels, served, url  # noqa: F401 (fixtures)
+from test_web import MIN_PSNR as WEB_MIN_PSNR
 
 KEYS = 9  # spinning()'s node key times: 0, 1/8, ..., 1
 
@@ -50,6 +52,14 @@ def carried_synthetic(model, n: int = 2000, **options) -> SkinnedGaussians:
     native = synthetic_model(n, seed=8, radius=0.6, scale=0.03, **{"sh_degree": 1, **options})
     return SkinnedGaussians(native, model.node_canonical, model.node_times, model.node_positions,
                             model.node_rotations, node_sigma=0.4)
+
+
+def read_array(data: bytes, name: str) -> np.ndarray:
+    """Array `name` of a ``splats.bin`` (float32, in its header's shape)."""
+    length = int(np.frombuffer(data[4:8], np.uint32)[0])
+    a = json.loads(data[8:8 + length])["arrays"][name]
+    assert a["type"] == "f32"
+    return np.frombuffer(data, np.float32, count=a["bytes"] // 4, offset=8 + length + a["offset"]).reshape(a["shape"])
 
 
 def test_viewer_arrays_are_the_canonical_gaussians_and_their_skin(model):
@@ -116,19 +126,65 @@ def test_baking_reproduces_the_slice_at_its_keys_and_follows_the_turn_between_th
         assert float(((b.covariances - g.covariances).abs() / scale).max()) < 1e-2
 
 
-def test_export_web_plays_the_baked_keys(model, checkpoint, tmp_path, capsys):
+def test_export_web_writes_the_canonical_gaussians_their_skin_and_the_node_keys(model, checkpoint, tmp_path, capsys):
     out = tmp_path / "player"
     assert main(["export", "web", str(checkpoint), "--out", str(out), "--quiet"]) == 0
-    header, key0 = geometry_texels((out / "splats.bin").read_bytes())  # the first key's rows come first
-    assert header["kind"] == "keyframed" and header["baked_from"] == "skinned"
-    assert header["keys"] == 2 * KEYS - 1 and len(header["key_times"]) == 2 * KEYS - 1
-    assert header["count"] == len(model)
-    np.testing.assert_allclose(key0[:, 0, :3], model.slice(0.0).means.numpy(), atol=1e-5)
+    data = (out / "splats.bin").read_bytes()
+    header, texels = geometry_texels(data)
+    assert header["kind"] == "skinned" and header["geom_texels"] == 6 and header["keys"] == 1
+    assert header["count"] == len(model) and header["node_count"] == model.num_nodes
+    assert header["node_times"] == pytest.approx(model.node_times.tolist())
+    np.testing.assert_allclose(texels[:, 0, :3], model.gaussians.means.numpy(), rtol=1e-6, atol=1e-7)
+    nodes, weights = model.skin
+    np.testing.assert_array_equal(texels[:, 4], nodes.numpy())
+    np.testing.assert_allclose(texels[:, 5], weights.numpy(), rtol=1e-6)
+    for name in ("node_canonical", "node_positions", "node_rotations"):
+        np.testing.assert_array_equal(read_array(data, name), getattr(model, name).float().numpy())
+    quantized = web_data(model, quantize=True)  # half-float geometry; the node keys stay float32
+    np.testing.assert_array_equal(read_array(quantized, "node_positions"), model.node_positions.float().numpy())
     assert "wrote" in capsys.readouterr().out
     # formats of linearly moving Gaussians refuse it in one line
     assert main(["export", "splatv", str(checkpoint), "--out", str(tmp_path / "m.splatv"), "--quiet"]) == 1
     err = capsys.readouterr().err.strip()
     assert "a skinned model has none" in err and len(err.splitlines()) == 1, err
+
+
+def test_the_web_data_of_a_skinned_model_is_far_smaller_than_its_baked_keys(model):
+    """The page used to play a skinned model baked at 2F - 1 keys (`splatreel.baking`): 17 copies of every
+    Gaussian here, where it now takes the canonical Gaussians once, 2 skin texels each, and the node keys."""
+    big = carried_synthetic(model, 3000)
+    size, baked = len(web_data(big)), len(web_data(bake_keyframes(big, skinned_bake_times(big))))
+    assert size < baked / 8, (size, baked)
+
+
+def test_web_page_carries_a_skinned_model_as_the_desktop_renderer(model, served, browser):
+    """The page against `render_image` between node keys (float and quantized); and its node poses
+    (``skinning.js``) against `splatreel.skinned.node_poses` on uneven keys with turns past half a turn between
+    them, before, in and after the first and last segments."""
+    root, base = served
+    small = carried_synthetic(model, 600, sh_degree=2, sh_degree_t=1)
+    cam = look_at((1.8, -1.9, 1.0), (0.0, 0.0, 0.0), "z", fov_deg=45, width=96, height=72)
+    t = 0.8  # between keys 0.75 and 0.875
+    for quantize in (False, True):
+        write_web(small, root / f"skinned{int(quantize)}", background=BACKGROUND, up_axis="Z", quantize=quantize)
+        page = url(f"{base}/skinned{int(quantize)}/index.html", cam, t)
+        _, db = check_page(browser, page, small, cam, t)
+        assert db >= WEB_MIN_PSNR, (quantize, db)
+    g = torch.Generator().manual_seed(5)
+    times = torch.tensor([0.0, 0.2, 0.7, 1.0], dtype=torch.float64)
+    positions = torch.randn(4, 5, 3, generator=g, dtype=torch.float64)
+    rotations = torch.randn(4, 5, 4, generator=g, dtype=torch.float64)
+    canonical = torch.randn(5, 3, generator=g, dtype=torch.float64)
+    for keys in (4, 1):
+        nodes = {"count": 5, "times": times[:keys].tolist(), "canonical": canonical.flatten().tolist(),
+                 "positions": positions[:keys].flatten().tolist(), "rotations": rotations[:keys].flatten().tolist()}
+        for at in (-0.3, 0.0, 0.1, 0.45, 0.7, 0.85, 1.0, 1.5):
+            texels = np.array(browser.eval(f"Array.from(splatreelNodePoses({json.dumps(nodes)}, {at}))"))
+            texels = texels.reshape(5, 4, 4)
+            p, r = node_poses(times[:keys], positions[:keys], rotations[:keys], at)
+            np.testing.assert_allclose(texels[:, :3, 3], p.numpy(), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(texels[:, :3, :3], r.numpy(), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(texels[:, 3, :3], canonical.numpy(), rtol=1e-6, atol=1e-6)
 
 
 def test_usd_export_has_the_carried_means_at_each_sample(model, checkpoint, tmp_path):

@@ -341,7 +341,7 @@ def test_single_file_gives_the_same_image(served, browser):
     del _QuietHandler.requested[:]
     folder, _ = check_page(browser, url(f"{base}/folder/index.html", cam, 0.7), model, cam, 0.7)
     assert sorted(_QuietHandler.requested) == ["/folder/index.html", "/folder/player.js", "/folder/shaders.js",
-                                               f"/folder/{DATA_NAME}"]  # (the scripts load in parallel)
+                                               "/folder/skinning.js", f"/folder/{DATA_NAME}"]  # (loaded in parallel)
     del _QuietHandler.requested[:]
     single, db = check_page(browser, url(f"{base}/one.html", cam, 0.7), model, cam, 0.7)
     assert _QuietHandler.requested == ["/one.html"]  # nothing else, from anywhere: the page holds it all
@@ -355,7 +355,7 @@ def test_cli_export_web(tmp_path, capsys):
     save_checkpoint(ckpt, model.to(dtype=torch.float32), background=(1.0, 1.0, 1.0), provenance={"up_axis": "Z"})
     out = tmp_path / "player"
     assert main(["export", "web", str(ckpt), "--out", str(out), "--quantize", "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["index.html", "player.js", "shaders.js", DATA_NAME]
+    assert sorted(p.name for p in out.iterdir()) == ["index.html", "player.js", "shaders.js", "skinning.js", DATA_NAME]
     data = (out / DATA_NAME).read_bytes()
     header = json.loads(data[8:8 + int(np.frombuffer(data[4:8], np.uint32)[0])])
     assert header["background"] == [1.0, 1.0, 1.0] and header["up"] == "z" and header["arrays"]["geom"]["type"] == "f16"

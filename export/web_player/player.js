@@ -1,4 +1,5 @@
-// splatreel web player: a native 4D (or keyframed) Gaussian splatting model in WebGL2, no build step, no network.
+// splatreel web player: a native 4D (keyframed, skinned) Gaussian splatting model in WebGL2, no build step, no
+// network.
 //
 // The model is evaluated at time t in the vertex shader with the desktop renderer's formulas
 // (splatreel shaders/splat_preprocess.glsl and splat_draw.glsl):
@@ -7,6 +8,9 @@
 //     covariance (stored as scales + rotation), opacity sigmoid(o) exp(-(t - mu_t)^2 / (2 Sigma_tt)), culled at or
 //     below TEMPORAL_CULL; colour = SH with cosine time terms cos(2 pi n (mu_t - t) / T), + 0.5, clamped at 0;
 //   * keyframed models: lerp of means, scales, opacities and SH, slerp of rotations between the keys around t;
+//   * skinned models (SC-GS, Huang et al. CVPR 2024): native 4D Gaussians whose canonical means and covariances
+//     are carried by their 4 control nodes (linear blend skinning), the nodes' poses at t computed here per
+//     displayed time (skinning.js) into a small texture;
 //   * EWA splatting (Zwicker et al. 2001) as in Kerbl et al., "3D Gaussian Splatting" (2023): Jacobian at the
 //     clamped x/z, y/z, + EPS2D px^2, cut where alpha < ALPHA_THRESHOLD, alpha clamped at MAX_ALPHA.
 // A Web Worker sorts the Gaussians back to front by their depth at t (a 16-bit counting sort over the depth range)
@@ -110,7 +114,8 @@
     self.onmessage = (e) => {
       const m = e.data;
       if (m.model) { model = m.model; return; }
-      const { rot, tz, t, key0, key1, w } = m;
+      const { rot, tz, t, key0, key1, w, poses } = m;
+      const carried = [0, 0, 0];
       const n = model.count, c = model.constants;
       const depth = new Float32Array(n);
       const live = new Uint32Array(n);
@@ -131,6 +136,10 @@
           x = p[q] + (p[q + 4] + 0.5 * p[q + 9] * dt) * dt;
           y = p[q + 1] + (p[q + 5] + 0.5 * p[q + 10] * dt) * dt;
           z = p[q + 2] + (p[q + 6] + 0.5 * p[q + 11] * dt) * dt;
+          if (poses) {  // skinned: the canonical mean carried by the nodes (skinning.js, prepended to this source)
+            splatreelCarry(poses, model.skin, i, p[q], p[q + 1], p[q + 2], carried);
+            [x, y, z] = carried;
+          }
         }
         const d = rot[0] * x + rot[1] * y + rot[2] * z + tz;
         if (!(d > c.NEAR_PLANE)) continue;
@@ -186,15 +195,16 @@
     const gl = canvas.getContext("webgl2", { alpha: false, antialias: false, depth: false,
                                              preserveDrawingBuffer: true, premultipliedAlpha: false });
     if (!gl) throw new Error("this browser has no WebGL2");
-    const keyed = H.kind === "keyframed";
+    const keyed = H.kind === "keyframed", skinned = H.kind === "skinned";
     const C = H.constants;
-    const texels = H.geom_texels || 4;  // geometry texels per Gaussian (and key): 5 with accelerations
+    const texels = H.geom_texels || 4;  // geometry texels per Gaussian (and key): 5 with accelerations, 6 skinned
     const defines = { SH_DEGREE: H.sh_degree, SH_DEGREE_T: H.sh_degree_t, SH_TEXELS: H.sh_texels,
                       GEOM_W: H.arrays.geom.size[0], SH_W: H.arrays.sh.size[0], GEOM_TEXELS: texels };
     // GLSL float literals (toPrecision always writes a decimal point here); TILE_SIZE stays an int
     for (const [k, v] of Object.entries(C)) defines[k] = k === "TILE_SIZE" ? Math.round(v) : v.toPrecision(17);
     if (keyed) defines.KEYFRAMED = 1;
-    else if (texels >= 5) defines.ACCELERATED = 1;
+    else if (skinned) defines.SKINNED = 1;
+    else if (texels === 5) defines.ACCELERATED = 1;
     if (H.arrays.sh.type === "u8") defines.SH_U8 = 1;
     const prog = compile(gl, defines);
     gl.useProgram(prog);
@@ -210,8 +220,12 @@
       gl.uniform4fv(U("u_sh_step"), new Float32Array(H.arrays.sh.step));
     }
 
+    const nodes = skinned && splatreelNodeTexture(gl, 2, H, arrays, texture);  // (skinning.js)
+    if (skinned) gl.uniform1i(U("u_nodes"), 2);
+
     // what the sort worker needs, as float32: native [x y z mu_t vx vy vz 1/(2 Sigma_tt) opacity ax ay az] per
-    // Gaussian (a = 0 without accelerations); keyframed: every key's means and opacities
+    // Gaussian (a = 0 without accelerations) and a skinned model's skin [4 nodes, 4 weights]; keyframed: every
+    // key's means and opacities
     const g = arrays.geom, stride = 4 * texels;
     const value = H.arrays.geom.type === "f16" ? (k) => halfToFloat(g[k]) : (k) => g[k];
     const rows = H.count * H.keys;
@@ -224,16 +238,17 @@
       }
       sortModel = { kind: H.kind, count: H.count, constants: C, pos, opacity };
     } else {
-      const pos = new Float32Array(12 * rows);
+      const pos = new Float32Array(12 * rows), skin = skinned ? new Float32Array(8 * rows) : null;
       for (let r = 0; r < rows; r++) {
         for (let k = 0; k < 8; k++) pos[12 * r + k] = value(stride * r + k);
         pos[12 * r + 8] = value(stride * r + 15);
-        if (texels >= 5) for (let k = 0; k < 3; k++) pos[12 * r + 9 + k] = value(stride * r + 16 + k);
+        if (texels === 5) for (let k = 0; k < 3; k++) pos[12 * r + 9 + k] = value(stride * r + 16 + k);
+        if (skinned) for (let k = 0; k < 8; k++) skin[8 * r + k] = value(stride * r + 16 + k);
       }
-      sortModel = { kind: H.kind, count: H.count, constants: C, pos };
+      sortModel = { kind: H.kind, count: H.count, constants: C, pos, skin };
     }
-    const worker = new Worker(URL.createObjectURL(new Blob(["(" + sortWorker.toString() + ")()"],
-                                                            { type: "text/javascript" })));
+    const source = splatreelCarry.toString() + "\n(" + sortWorker.toString() + ")()";
+    const worker = new Worker(URL.createObjectURL(new Blob([source], { type: "text/javascript" })));
     worker.postMessage({ model: sortModel });
 
     // instance attribute: the Gaussian index, in drawing order
@@ -297,7 +312,8 @@
       const [key0, key1, w] = keys(state.t);
       const tz = -dot3(P.fwd, P.eye);
       pending = { id: ++requestId, key };
-      worker.postMessage({ id: requestId, rot: P.fwd, tz, t: state.t, key0, key1, w });
+      worker.postMessage({ id: requestId, rot: P.fwd, tz, t: state.t, key0, key1, w,
+                           poses: skinned ? nodes.at(state.t) : null });
     }
     worker.onmessage = (e) => {
       const { order, count } = e.data;
@@ -335,6 +351,7 @@
       gl.uniform2f(U("u_size"), W, Hh);
       gl.uniform1f(U("u_height"), Hh);
       gl.uniform1f(U("u_time"), state.t);
+      if (skinned) nodes.at(state.t);
       const [key0, key1, w] = keys(state.t);
       gl.uniform1i(U("u_key0"), key0);
       gl.uniform1i(U("u_key1"), key1);

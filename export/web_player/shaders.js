@@ -1,6 +1,7 @@
 // The web player's GLSL ES 3.00 shaders (splatreel export web): the vertex shader evaluates each Gaussian at
-// time t as the desktop pre-pass does (shaders/splat_preprocess.glsl) and uses its EWA footprint, inserted below at
-// export time (shaders/splat_footprint.glsl); the fragment shader draws the splat as shaders/splat_draw.glsl does.
+// time t as the desktop pre-pass does (shaders/splat_preprocess.glsl) and uses its EWA footprint and its skinning,
+// inserted below at export time (shaders/splat_footprint.glsl, splat_skin.glsl); the fragment shader draws the
+// splat as shaders/splat_draw.glsl does.
 // Loaded before player.js, which compiles them.
 const SPLATREEL_VERTEX = `
 layout(location = 0) in uint a_index;
@@ -30,7 +31,7 @@ const float SH_C1 = 0.4886025119029199;
 const float TWO_PI = 6.283185307179586;
 #define SH_BASES ((SH_DEGREE + 1) * (SH_DEGREE + 1))
 
-vec4 geom(int row, int k) {  // texel k of a row of GEOM_TEXELS (4, or 5 with accelerations)
+vec4 geom(int row, int k) {  // texel k of a row of GEOM_TEXELS (4, or 5 with accelerations, 6 skinned)
   int i = row * GEOM_TEXELS + k;
   return texelFetch(u_geom, ivec2(i % GEOM_W, i / GEOM_W), 0);
 }
@@ -109,6 +110,10 @@ vec3 sh_color(int row0, int row1, float w, vec3 dir, float tau) {
 
 /*SPLAT_FOOTPRINT*/
 
+#ifdef SKINNED
+/*SPLAT_SKIN*/
+#endif
+
 void cull() {
   gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume
   v_uv = vec2(0.0);
@@ -135,7 +140,10 @@ void main() {
   float marginal = exp(-dt * dt * motion.w);
   if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
   float opacity = shape.w * marginal;
-#ifdef ACCELERATED
+#if defined(SKINNED)  // splatreel.skinned: the canonical mean (not moved by v) carried by the nodes at t
+  mat3 blend;
+  vec3 mean = skin_carry(m.xyz, geom(i, 4), geom(i, 5), 0, blend);
+#elif defined(ACCELERATED)
   vec3 mean = m.xyz + (motion.xyz + 0.5 * geom(i, 4).xyz * dt) * dt;  // splatreel.model: mu + v dt + a dt^2 / 2
 #else
   vec3 mean = m.xyz + motion.xyz * dt;
@@ -150,8 +158,12 @@ void main() {
   vec3 p = u_rot * mean + u_trans;
   if (!(p.z > NEAR_PLANE)) { cull(); return; }
   mat3 ms = rotmat(quat) * mat3(scale.x, 0.0, 0.0, 0.0, scale.y, 0.0, 0.0, 0.0, scale.z);
+  mat3 cov = ms * transpose(ms);
+#ifdef SKINNED
+  cov = blend * cov * transpose(blend);
+#endif
   Footprint f;
-  if (!splat_footprint(p, u_rot, ms * transpose(ms), opacity, u_intr, u_size, f)) { cull(); return; }
+  if (!splat_footprint(p, u_rot, cov, opacity, u_intr, u_size, f)) { cull(); return; }
   float radius = f.radius;
   vec2 centre = f.centre, axis1 = f.axis1, axis2 = f.axis2;
   vec2 half_box = min(vec2(f.box), radius * f.spread + 1.0);

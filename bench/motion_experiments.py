@@ -10,6 +10,10 @@ EXPERIMENT:
          drifting under the opacity's gradient would turn its Gaussian off its surface (an earlier implementation that
          let them drift scored 23.9 dB). No velocities from optical flow; splits in space only.
 
+  nodes-exact  (oracle, `spinner` sample only) the trainer's `--motion nodes`, its node tracks replaced by the box's
+         exact motion (the same nodes, posed at every key by the box's rotation and travel), then learned as usual:
+         what better tracking could buy at most.
+
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
 
@@ -109,6 +113,37 @@ def use_rigid_oracle() -> list[str]:
     return ["--set", "lr_t_means=0", "--set", "flow_motion_at=0"]
 
 
+# --- nodes-exact: the trainer's control nodes, tracked without error -------------------------------------------------
+def use_exact_nodes() -> list[str]:
+    """`--motion nodes` with the tracking replaced by the spinner's exact motion: the same nodes (drawn among the
+    middle frame's Gaussians), posed at every key by the box's own rotation and travel, then learned as usual. What
+    better tracking could buy at most."""
+    import splatreel.train.trainer as trainer
+    from splatreel.samples.objects import Spinner
+    from splatreel.train.nodes import TrackedNodes
+
+    track = trainer.track_nodes
+    box = Spinner()
+
+    def exact(model, ds, background, count, seed=0):
+        tracked = track(model, ds, background, count, seed)
+        if tracked is None:
+            return None
+        times = np.asarray(ds.frame_times)
+        share = (times - times[0]) / (times[-1] - times[0])
+        here = share[tracked.middle]
+        canonical = tracked.canonical - torch.from_numpy(box.center(here))
+        positions, rotations = [], []
+        for s in share:
+            rot = torch.from_numpy(box.rotation(s) @ box.rotation(here).T)
+            positions.append((rot @ canonical[..., None])[..., 0] + torch.from_numpy(box.center(s)))
+            rotations.append(quaternion.from_rotmat(rot.expand(len(canonical), 3, 3).contiguous()))
+        return TrackedNodes(torch.stack(positions), torch.stack(rotations), tracked.middle)
+
+    trainer.track_nodes = exact
+    return ["--set", "motion=nodes"]
+
+
 class _NativeGaussians4D(Gaussians4D):
     """A sample's exact model: the bench's upper bound, which the experiment's motion must not carry."""
     _sliced = _native_sliced
@@ -129,7 +164,7 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
-EXPERIMENTS = {"rigid": use_rigid_oracle}
+EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes}
 
 
 def main() -> None:

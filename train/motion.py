@@ -125,14 +125,15 @@ class FlowTracks:
     prev_seen: np.ndarray
 
 
-def flow_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> FlowTracks:
+def flow_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, fine: bool = False) -> FlowTracks:
     """Follow every Gaussian of `model` (on `ds`'s times) by the optical flow between the consecutive frames of each
-    camera (module doc) to the neighbouring frames."""
+    camera (module doc) to the neighbouring frames; `fine`: by the finer, slower flow (`train.flow.optical_flow`)."""
     model = model.detach()
-    return _tracks(model, _Motion.of(model, ds.frame_times), ds, background)
+    return _tracks(model, _Motion.of(model, ds.frame_times), ds, background, fine)
 
 
-def _tracks(model: Gaussians4D, motion: _Motion, ds: Dataset, background: torch.Tensor) -> FlowTracks:
+def _tracks(model: Gaussians4D, motion: _Motion, ds: Dataset, background: torch.Tensor,
+            fine: bool = False) -> FlowTracks:
     """`flow_tracks` of a detached `model` whose `_Motion` is at hand."""
     frame_of, position = motion.frame, motion.position.numpy()
     var_t = motion.var_t.to(model.t_means.dtype)
@@ -149,7 +150,7 @@ def _tracks(model: Gaussians4D, motion: _Motion, ds: Dataset, background: torch.
                     if k not in renders:
                         renders[k] = _render(model, ds.train[k], background, var_t)
                 ci, cj = target_bytes(vi, background), target_bytes(vj, background)
-                fwd, bwd = optical_flow(ci, cj), optical_flow(cj, ci)
+                fwd, bwd = optical_flow(ci, cj, fine), optical_flow(cj, ci, fine)
                 dt = vj.time - vi.time
                 for src, dst, f, b, sign in ((i, j, fwd, bwd, 1.0), (j, i, bwd, fwd, -1.0)):
                     rows = np.nonzero(frame_of == rank[ds.train[src].time])[0]

@@ -10,8 +10,8 @@ from what the images show:
   drawn by farthest-point sampling among the opaque Gaussians of the middle frame (their positions there are the
   canonical frame);
 * each node is tracked frame by frame, forwards and backwards from the middle: it moves by the rigid (Kabsch) fit of
-  its `FIT_NEIGHBOURS` nearest Gaussians' optical-flow tracks (`train.motion.flow_tracks`) to the next frame
-  (`splatreel.pointsets.rigid_fit`);
+  its `FIT_NEIGHBOURS` nearest Gaussians' optical-flow tracks (`train.motion.flow_tracks`, by the fine flow: the
+  nodes' errors add up frame after frame) to the next frame (`splatreel.pointsets.rigid_fit`);
 * every Gaussian is carried once from its own frame to the canonical frame (its mean and its conditional covariance)
   by the inverse blend of its nearest nodes there, and loses its native velocity;
 * from then on the node poses at every key frame are parameters, with their own Adam, and an as-rigid-as-possible
@@ -74,7 +74,7 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
     """`count` nodes among the middle frame's opaque Gaussians of `model` (on `ds`'s times), tracked to every frame
     (module doc); None when no camera films consecutive frames."""
     model = model.detach().to("cpu")
-    tracks = flow_tracks(model, ds, background.cpu())
+    tracks = flow_tracks(model, ds, background.cpu(), fine=True)
     frames = len(ds.frame_times)
     if not tracks.count.any() or frames < 2:
         return None

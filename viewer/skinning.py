@@ -33,8 +33,9 @@ SPEED_STEP = 1e-3
 POSE_SETS = 3
 #: RGBA texels per node and pose set.
 NODE_TEXELS = 4
-#: (row, column) of the covariance entries in a `SplatArrays.cov` row.
-_TRIU = np.array([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)], np.int64)
+#: (row, column) of the covariance entries in a `SplatArrays.cov` row (`splats` packs them; here, not there, since
+#: splats imports this module).
+COV_TRIU = np.array([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)], np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,7 +138,7 @@ def _carry(mean_t, cov, nodes, weights, canonical, positions, turns, out_mean, o
         for r in range(3):
             out_mean[i, r] = m[r]
         for e in range(6):
-            r, c = _TRIU[e, 0], _TRIU[e, 1]
+            r, c = COV_TRIU[e, 0], COV_TRIU[e, 1]
             acc = 0.0
             for p in range(3):
                 for q in range(3):

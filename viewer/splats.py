@@ -36,9 +36,7 @@ from splatreel.errors import ModelError
 from splatreel.model import Gaussians3D, Gaussians4D, KeyframedGaussians
 from splatreel.skinned import SkinnedGaussians
 
-from .skinning import SkinArrays
-
-_COV_TRIU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+from .skinning import COV_TRIU, SkinArrays
 
 
 @dataclass
@@ -127,7 +125,7 @@ def _pack_cov(cov3: torch.Tensor, opacity: torch.Tensor, velocity: torch.Tensor 
     triangle, opacity, speed)."""
     n = cov3.shape[0]
     out = np.zeros((n, 8), np.float32)
-    for k, (i, j) in enumerate(_COV_TRIU):
+    for k, (i, j) in enumerate(COV_TRIU.tolist()):
         out[:, k] = _np32(cov3[:, i, j])
     out[:, 6] = _np32(opacity)
     if velocity is not None:

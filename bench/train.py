@@ -12,8 +12,9 @@ black instead of the dataset's white: a dark silhouette on white costs far more)
 model, `splatreel sample NAME --model`, on the same test views), `needle_share` (Gaussians whose largest-to-smallest
 axis ratio is above 10, on the 4D Gaussians' spatial scales), `sliced_needle_share` (the same for the 3D Gaussians
 that slicing shows), `test_per_view` (each test view's camera, time, PSNR and `at_frame`: whether its time is a
-training frame's or in between), the decisions of the recipe, what the alpha-agreement test said, and the
-baselines' PSNR on the same test views:
+training frame's or in between), the decisions of the recipe, `nodes` (with control nodes, what the switch to them
+decided: `template`, one set of Gaussians for the clip; `template_ratio`, the carried template's worst loss over a
+frame's own), what the alpha-agreement test said, and the baselines' PSNR on the same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.
@@ -255,7 +256,7 @@ def main() -> None:
                          "decisions": [d.line() for d in decisions], "overrides": args.set,
                          "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
-                         "test_per_view": per_view_scores(ev, ds),
+                         "test_per_view": per_view_scores(ev, ds), "nodes": tr.node_outcome,
                          "generate_seconds": round(gen_s, 2), "device": str(tr.device), "reference_ms": ref_ms,
                          "step": step_breakdown(tr, args.profile_steps) if args.profile_steps else None})
             print(rows[-1], flush=True)

@@ -1,5 +1,7 @@
-"""Training with control nodes (motion 'nodes', `splatreel.train.nodes`): tracking on a sample whose motion is known,
-the move to the canonical frame, the rigidity term, and a run that writes a skinned checkpoint and resumes exactly."""
+"""Training with control nodes (motion 'nodes' and 'auto', `splatreel.train.nodes`, `splatreel.train.pose_fit`):
+tracking on a sample whose motion is known, the rigid motions fitted to the frames, the move to the canonical frame,
+the one set of Gaussians for the clip, the rigidity term, and runs that write skinned checkpoints and resume
+exactly."""
 
 import dataclasses
 import math
@@ -10,12 +12,16 @@ import torch
 
 from splatreel import quaternion
 from splatreel.checkpoint import load_checkpoint
+from splatreel.cli.train import node_outcome_line
 from splatreel.covariance import condition_on_time
 from splatreel.samples import build_model
 from splatreel.samples.objects import Spinner
+from splatreel.pointsets import rigid_fit
 from splatreel.skinned import SkinnedGaussians
 from splatreel.train.data import load_dataset
-from splatreel.train.nodes import TrackedNodes, node_spacing, rigidity, to_canonical, track_nodes
+from splatreel.skinned import carry, skin_weights
+from splatreel.train.nodes import TrackedNodes, middle_template, node_spacing, rigidity, to_canonical, track_nodes
+from splatreel.train.pose_fit import fit_tracks, template_fits
 from splatreel.train.recipe import auto_recipe, read_traits
 from splatreel.train.trainer import Trainer
 
@@ -52,6 +58,56 @@ def test_nodes_tracked_on_the_exact_spinner_move_and_turn_with_the_box(spinner):
         moved = (truth @ (tracked.canonical - centre)[..., None])[..., 0] + torch.from_numpy(box.center(share[k]))
         error = (tracked.positions[k] - moved).norm(dim=1).median()
         assert float(error) < 0.5 * float((moved - tracked.canonical).norm(dim=1).median())
+
+
+def carried_error(model, tracked: TrackedNodes, ds, box: Spinner) -> np.ndarray:
+    """``[F]`` median distance, in units of the box's half-diagonal, between the middle frame's opaque Gaussians
+    carried by `tracked` to each frame and where the box's true motion takes them."""
+    frames = np.asarray(ds.frame_times)
+    share = (frames - frames[0]) / (frames[-1] - frames[0])
+    mid = tracked.middle
+    with torch.no_grad():
+        s = model.slice(float(frames[mid]))
+        points = s.means[s.visible & (s.opacities > 0.3)].double()
+    sigma = node_spacing(tracked.canonical)
+    idx, w = skin_weights(points, tracked.canonical, sigma)
+    size = float(np.linalg.norm(box.half_extents))
+    out = []
+    for k in range(len(frames)):
+        turn = box.rotation(share[k]) @ box.rotation(share[mid]).T
+        truth = (points.numpy() - box.center(share[mid])) @ turn.T + box.center(share[k])
+        r = quaternion.to_rotmat(quaternion.normalize(tracked.rotations[k]))
+        moved, _ = carry(points, None, idx, w.double(), tracked.canonical.double(), tracked.positions[k], r)
+        out.append(np.median(np.linalg.norm(moved.numpy() - truth, axis=1)) / size)
+    return np.array(out)
+
+
+def test_one_rigid_motion_fitted_to_the_frames_carries_the_box_where_the_flow_drifts(spinner):
+    """The flow's nodes drift frame after frame (the flow falls short of a 24-degree turn); one rigid motion per key,
+    fitted to each frame's images, keeps the middle frame's Gaussians on the box at every frame, and so they draw
+    every frame about as well as the frame's own Gaussians do."""
+    ds = load_dataset(spinner)
+    model, box = build_model("spinner"), Spinner()
+    tracked = track_nodes(model, ds, torch.ones(3), count=64)
+    fit = fit_tracks(model, ds, torch.ones(3), tracked, node_spacing(tracked.canonical), steps=40)
+    flow, fitted = carried_error(model, tracked, ds, box), carried_error(model, fit.nodes, ds, box)
+    assert flow[[0, -1]].min() > 0.4  # the flow's nodes end far off (by 0.53-0.62 of the size at 128 px)
+    assert fitted.max() < 0.15 and fitted.max() < 0.3 * flow[[0, -1]].min()  # 0.06-0.13
+    # the nodes move alike: one rigid motion per key
+    positions = fit.nodes.positions
+    turn, c0, c1, _ = rigid_fit(positions[8].numpy()[None], positions[0].numpy()[None])
+    moved = (positions[8].numpy() - c0[0]) @ turn[0].T + c1[0]
+    assert np.abs(moved - positions[0].numpy()).max() < 1e-6
+    assert template_fits(fit) and fit.template_loss[8] <= 1.05 * fit.frame_loss[8]  # worst frame: 1.16
+
+
+def test_the_middle_template_keeps_the_middle_frames_gaussians_for_the_whole_clip():
+    times = torch.linspace(0.0, 4.0, 5, dtype=torch.float64)
+    t_means = torch.tensor([0.1, 1.9, 2.2, 3.0, 2.49, 2.51], dtype=torch.float32)
+    mask, static = middle_template(t_means, times, 2, (0.0, 4.0))
+    assert mask.tolist() == [False, True, True, False, True, False]
+    assert static["t_means"].tolist() == [2.0] * 3
+    torch.testing.assert_close(static["log_t_scales"], torch.full((3,), math.log(4.0)))
 
 
 def rigid_nodes(m=30, frames=5, seed=0) -> tuple[TrackedNodes, torch.Tensor]:
@@ -102,13 +158,15 @@ def small_spinner(tmp_path_factory):
     return sample_dataset(tmp_path_factory, "spinner", views=4, frames=4, size=64, test_views=2)
 
 
-def test_a_run_with_nodes_writes_a_skinned_checkpoint_and_resumes_exactly(small_spinner, tmp_path):
+@pytest.mark.parametrize("template", ["off", "on"])
+def test_a_run_with_nodes_writes_a_skinned_checkpoint_and_resumes_exactly(small_spinner, tmp_path, template):
     ds = load_dataset(small_spinner)
     cfg, _ = auto_recipe(read_traits(ds))
-    cfg = dataclasses.replace(cfg.scaled(20), minutes=None, num_gaussians=800, seed=3, motion="nodes", node_count=24)
+    cfg = dataclasses.replace(cfg.scaled(20), minutes=None, num_gaussians=800, seed=3, motion="nodes", node_count=24,
+                              node_template=template)
     a = Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False)
     a.run()
-    assert a.nodes is not None  # tracked at the flow step
+    assert a.nodes is not None and a.node_outcome["template"] == (template == "on")  # tracked at the flow step
     Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=int(cfg.flow_motion_at * 20) + 2)
     Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
     ma, mb = load_checkpoint(tmp_path / "a.safetensors").model, load_checkpoint(tmp_path / "b.safetensors").model
@@ -118,3 +176,24 @@ def test_a_run_with_nodes_writes_a_skinned_checkpoint_and_resumes_exactly(small_
         torch.testing.assert_close(v, mb.tensors()[k], rtol=0, atol=0)
     g = ma.slice(float(np.mean(ds.frame_times)))
     assert torch.isfinite(g.means).all() and torch.isfinite(g.covariances).all()
+    if template == "on":  # one set for the clip: nearly all are drawn at both ends (a split's children live shorter)
+        for t in (ds.frame_times[0], ds.frame_times[-1]):
+            assert float(ma.slice(float(t)).visible.float().mean()) > 0.9
+    else:  # each frame its own: most are drawn near their own time only
+        assert float(ma.slice(float(ds.frame_times[0])).visible.float().mean()) < 0.6
+
+
+def test_motion_auto_stays_quadratic_where_one_set_of_gaussians_does_not_fit(small_spinner, tmp_path):
+    """Motion 'auto' with the template refused: no nodes, the velocities from the flow, a native checkpoint."""
+    ds = load_dataset(small_spinner)
+    cfg, _ = auto_recipe(read_traits(ds))
+    cfg = dataclasses.replace(cfg.scaled(12), minutes=None, num_gaussians=600, seed=1, motion="auto", node_count=16,
+                              node_template="off")
+    run = Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False)
+    run.run()
+    assert run.nodes is None and run.node_outcome is not None and not run.node_outcome["template"]
+    assert node_outcome_line(run.node_outcome, "auto").endswith("; the motion stays quadratic")
+    assert node_outcome_line({"template": True, "template_ratio": 1.2}, "auto").startswith(
+        "one set of Gaussians for the whole clip") and node_outcome_line(None, "auto") is None
+    model = load_checkpoint(tmp_path / "a.safetensors").model
+    assert model.kind != "skinned" and model.accelerations is not None

@@ -23,7 +23,9 @@ import math
 from dataclasses import dataclass, field
 
 #: How the Gaussians' means can move (`TrainConfig.motion`).
-MOTIONS = ("linear", "quadratic", "nodes")
+MOTIONS = ("linear", "quadratic", "nodes", "auto")
+#: Whether motion 'nodes' keeps one set of Gaussians for the whole clip (`TrainConfig.node_template`).
+NODE_TEMPLATES = ("auto", "on", "off")
 #: How densification splits a large Gaussian (`DensifyConfig.split`).
 SPLITS = ("spacetime", "space")
 
@@ -152,9 +154,11 @@ class TrainConfig:
     inbetween_share: float = 0.0
     #: How the Gaussians' means move: 'linear' (native 4DGS), 'quadratic' (each Gaussian also learns an
     #: acceleration, `Gaussians4D.accelerations`, at `lr_accelerations` times the scene extent, per unit of the
-    #: trainer's time axis squared) or 'nodes' (quadratic until the flow step, `flow_motion_at`, then carried by
+    #: trainer's time axis squared), 'nodes' (quadratic until the flow step, `flow_motion_at`, then carried by
     #: `node_count` control nodes tracked by the optical flow: `splatreel.skinned`, `train.nodes`; needs cameras
-    #: that film consecutive frames, and stays quadratic without).
+    #: that film consecutive frames, and stays quadratic without) or 'auto' (quadratic until the flow step; then
+    #: nodes carrying one set of Gaussians for the whole clip where one rigid motion per frame carries the middle
+    #: frame's Gaussians to every frame (`train.pose_fit.template_fits`), else quadratic with the flow's velocities).
     motion: str = "linear"
     lr_accelerations: float = 1.8e-3
     #: Control nodes of motion 'nodes', and the learning rates of their key poses: positions (times the scene
@@ -164,6 +168,13 @@ class TrainConfig:
     lr_node_rotations: float = 5e-4
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
+    #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes
+    #: (motion 'nodes'; `train.pose_fit`); 0: the flow's poses as they are.
+    node_fit_steps: int = 40
+    #: Motion 'nodes': keep only the middle frame's Gaussians, drawn at every time and carried by the nodes, one set
+    #: for the whole clip ('on'); never ('off'); or when the nodes carry them to every key frame and they draw it
+    #: within `train.pose_fit.TEMPLATE_FIT` of the frame's own Gaussians ('auto').
+    node_template: str = "auto"
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

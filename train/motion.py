@@ -167,15 +167,17 @@ def _tracks(model: Gaussians4D, motion: _Motion, ds: Dataset, background: torch.
                       prev_n > 0)
 
 
-def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor) -> tuple[torch.Tensor, int]:
+def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor,
+                    tracks: FlowTracks | None = None) -> tuple[torch.Tensor, int]:
     """``[N, 3]`` velocity of every Gaussian of `model` (on `ds`'s times) from optical flow between the
-    consecutive frames of each camera (module doc), and how many Gaussians a camera saw on the surface (the rest
-    took their neighbours' velocity; all keep their own when no Gaussian was seen)."""
+    consecutive frames of each camera (module doc; `tracks`: the model's `flow_tracks` when already at hand), and how
+    many Gaussians a camera saw on the surface (the rest took their neighbours' velocity; all keep their own when no
+    Gaussian was seen)."""
     from scipy.spatial import cKDTree
 
     model = model.detach()
     motion = _Motion.of(model, ds.frame_times)
-    tracks = _tracks(model, motion, ds, background)
+    tracks = tracks or _tracks(model, motion, ds, background)
     frame_of, position, count = tracks.frame, tracks.position, tracks.count
     seen = count > 0
     estimate = np.zeros((len(model), 3))

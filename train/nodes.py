@@ -34,7 +34,7 @@ from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
-from .motion import flow_tracks
+from .motion import FlowTracks, flow_tracks
 
 #: A node moves by the rigid fit of this many nearest Gaussians' tracks.
 FIT_NEIGHBOURS = 128
@@ -69,12 +69,13 @@ class TrackedNodes:
         return self.positions[self.middle]
 
 
-def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count: int,
-                seed: int = 0) -> TrackedNodes | None:
+def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count: int, seed: int = 0,
+                tracks: FlowTracks | None = None, rigid: bool = False) -> TrackedNodes | None:
     """`count` nodes among the middle frame's opaque Gaussians of `model` (on `ds`'s times), tracked to every frame
-    (module doc); None when no camera films consecutive frames."""
+    (module doc) by `tracks` (default: the fine flow's); `rigid`: all of them by the rigid fit of every track of a
+    frame (one rigid body). None when no camera films consecutive frames."""
     model = model.detach().to("cpu")
-    tracks = flow_tracks(model, ds, background.cpu(), fine=True)
+    tracks = tracks or flow_tracks(model, ds, background.cpu(), fine=True)
     frames = len(ds.frame_times)
     if not tracks.count.any() or frames < 2:
         return None
@@ -95,9 +96,11 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
             if len(rows) < 3:  # nothing seen moving on: the nodes hold their pose
                 pos[k + step], rot[k + step] = pos[k], rot[k]
                 continue
-            start = torch.from_numpy(tracks.position[rows])
-            _, idx = nearest_nodes(start, pos[k], FIT_NEIGHBOURS)  # each node's nearest tracks
-            idx = idx.numpy()
+            if rigid:  # every node the same tracks: all of the frame's
+                idx = np.broadcast_to(np.arange(len(rows)), (1, len(rows)))
+            else:
+                _, idx = nearest_nodes(torch.from_numpy(tracks.position[rows]), pos[k], FIT_NEIGHBOURS)
+                idx = idx.numpy()  # each node's nearest tracks
             turn, cx, cy, _ = (torch.from_numpy(x) for x in rigid_fit(tracks.position[rows][idx], ends[rows][idx]))
             pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
             rot[k + step] = turn @ rot[k]
@@ -130,6 +133,21 @@ def to_canonical(model: Gaussians4D, key_times: torch.Tensor, nodes: TrackedNode
             covariance_4d_from_motion(cov3, torch.zeros_like(means), var_t), g.rotation_convention)
     return {"means": means, "log_scales": scales.clamp_min(1e-12).log(), "log_t_scales": t_scales.clamp_min(1e-12).log(),
             "quats_l": q_l, "quats_r": q_r}
+
+
+def middle_template(t_means: torch.Tensor, key_times: torch.Tensor, middle: int,
+                    time_range: tuple[float, float]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """One set of Gaussians for the whole clip: the mask ``[N]`` of the Gaussians whose temporal mean is nearest key
+    `middle` (the canonical frame's), and their new temporal means (the clip's middle) and log temporal std-devs (the
+    clip's length), as `train.initialize.start_static` makes static ones: drawn at every time with at least 88 % of
+    their opacity, carried by the nodes."""
+    near = torch.argmin((t_means.detach()[:, None] - key_times.to(t_means)[None]).abs(), 1)
+    mask = near == middle
+    t0, t1 = time_range
+    k = int(mask.sum())
+    return mask, {"t_means": torch.full((k,), 0.5 * (t0 + t1), dtype=t_means.dtype, device=t_means.device),
+                  "log_t_scales": torch.full((k,), float(np.log(max(t1 - t0, 1e-6))), dtype=t_means.dtype,
+                                             device=t_means.device)}
 
 
 def rigidity(canonical: torch.Tensor, positions: torch.Tensor, rotations: torch.Tensor, pairs: torch.Tensor,

@@ -25,7 +25,7 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
-    from splatreel.train.config import MOTIONS, PRESETS, SPLITS
+    from splatreel.train.config import MOTIONS, NODE_TEMPLATES, PRESETS, SPLITS
     from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_MINUTES,
                                         ONE_VIEW_MINUTES, SCALE_RATIO_WEIGHT)
 
@@ -87,11 +87,19 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "frames, else it is ignored with a note)")
     p.add_argument("--motion", choices=MOTIONS,
                    help="how the Gaussians move: linear (native 4DGS), quadratic (each also learns an acceleration, "
-                        "so it can follow a curved path; exported where the format holds it) or nodes (quadratic "
+                        "so it can follow a curved path; exported where the format holds it), nodes (quadratic "
                         "until the flow step, then carried by control nodes tracked by the optical flow, so one "
                         "Gaussian follows its part through every time; needs cameras that film consecutive frames; "
-                        "a skinned checkpoint) (default: the recipe's, quadratic for more than one frame; the named "
-                        "presets linear; a resumed run keeps its own)")
+                        "a skinned checkpoint) or auto (quadratic until the flow step; then, where one rigid motion "
+                        "per frame, fitted to the images, carries the middle frame's Gaussians to every frame, nodes "
+                        "carrying that one set for the whole clip, else quadratic on) (default: the recipe's, auto "
+                        "for an image matrix, quadratic for one camera per time; the named presets linear; a resumed "
+                        "run keeps its own)")
+    p.add_argument("--node-template", choices=NODE_TEMPLATES,
+                   help="with nodes: keep only the middle frame's Gaussians, drawn at every time and carried by the "
+                        "nodes, one set for the whole clip (on), never (off), or when the nodes carry them to every "
+                        "frame and they draw it nearly as well as the frame's own Gaussians (auto) (default: auto; a "
+                        "resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -141,7 +149,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "lambda_scale_ratio": args.scale_ratio_weight, "t_scale_init_frames": args.t_scale_init,
             "static_share": args.static_share, "clip_duration": None if resumed else args.clip_duration,
             "flow_motion_at": args.flow_motion_at,
-            "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion}
+            "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion,
+            "node_template": None if resumed else args.node_template}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:
@@ -170,6 +179,19 @@ def given_value(args: argparse.Namespace, option: str) -> str | None:
     if option == "--resolution-ramp":
         return ",".join(f"{f:g}:{k}" for f, k in value)
     return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def node_outcome_line(outcome: dict | None, motion: str) -> str | None:
+    """What the switch to control nodes decided (`Trainer.node_outcome`), in one line; None when there was none."""
+    if outcome is None:
+        return None
+    ratio = outcome["template_ratio"]
+    fit = "" if ratio is None or ratio == float("inf") else f" (the worst frame fitted: {ratio:.2f} times its own error)"
+    if outcome["template"]:
+        return ("one set of Gaussians for the whole clip: one rigid motion per frame carries the middle frame's to "
+                f"every frame{fit}; --node-template off to change")
+    return ("every frame keeps its own Gaussians: one rigid motion per frame does not carry the middle frame's to "
+            f"every frame{fit}" + ("; the motion stays quadratic" if motion == "auto" else ""))
 
 
 def background_name(rgb) -> str:
@@ -201,7 +223,8 @@ def run(args: argparse.Namespace) -> int:
         meta = read_metadata(args.out)
         resumed = meta.get("training") or None
         if resumed:
-            run_facts = ("iteration", "dataset", "layout", "background_reason", "alpha_disagreement", "alpha_ignored")
+            run_facts = ("iteration", "dataset", "layout", "background_reason", "alpha_disagreement", "alpha_ignored",
+                         "nodes")
             resumed = {k: v for k, v in resumed.items() if k not in run_facts}
         recorded_bg = meta.get("background")
     ds = load_dataset(args.data, layout=args.layout, downscale=args.downscale, background=args.background)
@@ -228,6 +251,9 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"splatreel train: interrupted at iteration {trainer.step}; saved {args.out} (continue with --resume)")
         return 130
+    line = node_outcome_line(trainer.node_outcome, cfg.motion)
+    if line and not args.resume:
+        print(f"splatreel train: {line}")
     msg = f"splatreel train: wrote {result.out} ({result.n_gaussians:,} Gaussians, {result.iterations} iterations, " \
           f"{result.seconds:.1f} s)"
     done = trainer.finished()

@@ -52,7 +52,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert "time units long" in text and "--clip-duration" in text
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
     assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
-    assert cfg.motion == "quadratic" and "quadratic motion" in text and "--motion" in text
+    assert cfg.motion == "auto" and "one set of Gaussians for the whole clip" in text and "--motion" in text
     assert cfg.densify.split == "spacetime" and "--split" not in text  # several views a time: official
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
 
@@ -233,7 +233,7 @@ def test_help_states_the_recipes_budgets_and_motion(capsys):
         main(["train", "--help"])
     said = " ".join(capsys.readouterr().out.split())
     assert "5 for an image matrix, 10 for one camera per time" in said
-    assert "quadratic for more than one frame" in said
+    assert "auto for an image matrix, quadratic for one camera per time" in said
     # the help states the recipe's own values
     assert f"more than 10:1 anisotropic (default: the recipe's, {SCALE_RATIO_WEIGHT:g};" in said
     assert f"(default: the recipe's, {CLIP_DURATION:g}; the checkpoint keeps" in said
@@ -311,10 +311,13 @@ def test_split_option_overrides_the_recipe(small_floor, tmp_path, capsys):
 
 
 def test_motion_option_overrides_the_recipe(matrix, tmp_path, capsys):
-    for given, expect in ((None, "quadratic"), ("linear", "linear")):
+    for given, expect in ((None, "auto"), ("linear", "linear")):
         out = tmp_path / f"{expect}.safetensors"
         assert main(["train", str(matrix), "--out", str(out), "--iters", "2", "--num-gaussians", "300", "--quiet",
                      *(["--motion", given] if given else [])]) == 0
         said = capsys.readouterr().out
         assert ("--motion linear given)" in said) == (given is not None)
-        assert (load_checkpoint(out).model.accelerations is None) == (expect == "linear")
+        written = load_checkpoint(out)
+        assert written.training["motion"] == expect
+        if written.model.kind != "skinned":  # auto: quadratic unless one set of Gaussians fitted every frame
+            assert (written.model.accelerations is None) == (expect == "linear")

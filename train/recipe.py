@@ -233,10 +233,23 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
         # minutes, seeds 0 and 1, each pair in the same hour) linear 22.39 / 22.29, quadratic 23.25 / 23.38: a
         # bouncing ball falls on parabolas, a pendulum swings on an arc, and each Gaussian lives about a tenth of
         # the clip; the walker (not tuned on) linear 32.44, quadratic 33.05 / 33.06
-        changes.update(motion="quadratic")
-        decisions.append(Decision("quadratic motion (each Gaussian learns an acceleration)",
-                                  "a Gaussian can follow a curved path (a turning surface, a falling or swinging "
-                                  "object) over its life instead of handing over to the next", "--motion"))
+        # measured held out, 5 minutes (2026-11-28): the spinner 28.3 quadratic, 29.5 with nodes tracked by the
+        # flow, 32.8-33.1 with one set of Gaussians carried by one rigid motion per frame fitted to the images
+        # (`motion` 'auto'); where that set does not draw every frame, auto stays quadratic: wave (template ratio 3.9)
+        # 33.4 against 33.7, walker (1.9) 33.6 against 33.2-33.4
+        if not traits.one_view_per_time:
+            changes.update(motion="auto")
+            decisions.append(Decision("quadratic motion (each Gaussian learns an acceleration), then one set of "
+                                      "Gaussians for the whole clip if one rigid motion per frame carries the middle "
+                                      "frame's to every frame",
+                                      "a Gaussian can follow a curved path over its life; a rigid object is then "
+                                      "drawn by all the Gaussians at every time instead of a share at each",
+                                      "--motion"))
+        else:
+            changes.update(motion="quadratic")
+            decisions.append(Decision("quadratic motion (each Gaussian learns an acceleration)",
+                                      "a Gaussian can follow a curved path (a turning surface, a falling or swinging "
+                                      "object) over its life instead of handing over to the next", "--motion"))
         # measured held out (half-way times), 5 minutes: the clip as 1, 3, 5 and 15 time units scored 24.2, 25.0,
         # 25.4 and 24.7 dB on the spinner; at 5 units with a constant rotation rate texture fell 30.3 -> 28.2 and
         # wave 33.9 -> 32.1; with the rate decaying 10x: spinner 25.4, texture 30.3, wave 33.6, and the floor

@@ -1,5 +1,5 @@
-"""Control nodes for skinned Gaussians (`TrainConfig.motion` 'nodes'): found by tracking the optical flow, then learned
-with the Gaussians.
+"""Control nodes for skinned Gaussians (`TrainConfig.motion` 'nodes' and 'auto'): found by tracking the optical flow,
+then learned with the Gaussians.
 
 Why: a native Gaussian moves on a straight line, so a turning part is drawn by a relay of Gaussians, each alive for
 about a frame, and the times between frames show the hand-over. Motion shared by many Gaussians (SC-GS, Huang et al.
@@ -16,6 +16,11 @@ from what the images show:
   by the inverse blend of its nearest nodes there, and loses its native velocity;
 * from then on the node poses at every key frame are parameters, with their own Adam, and an as-rigid-as-possible
   term (SC-GS's ARAP) keeps each node's offsets to its `RIGID_NEIGHBOURS` canonical neighbours turning with it.
+
+Where one rigid motion per frame, fitted to the images (`train.pose_fit`; the nodes then tracked with `rigid`), carries
+the middle frame's Gaussians to every frame, those alone serve the whole clip (`middle_template`): motion 'auto' does
+this, and otherwise stays native; motion 'nodes' does it where it fits (`TrainConfig.node_template`) and otherwise
+keeps every frame's Gaussians on the flow's nodes.
 
 A dataset where no camera films consecutive frames (one camera per time) has no tracks: the motion stays native.
 """

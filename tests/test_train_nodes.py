@@ -103,9 +103,12 @@ def test_one_rigid_motion_fitted_to_the_frames_carries_the_box_where_the_flow_dr
 
 def test_the_middle_template_keeps_the_middle_frames_gaussians_for_the_whole_clip():
     times = torch.linspace(0.0, 4.0, 5, dtype=torch.float64)
-    t_means = torch.tensor([0.1, 1.9, 2.2, 3.0, 2.49, 2.51], dtype=torch.float32)
-    mask, static = middle_template(t_means, times, 2, (0.0, 4.0))
-    assert mask.tolist() == [False, True, True, False, True, False]
+    t_means = torch.tensor([0.1, 1.9, 2.2, 3.0, 2.49, 2.51, 2.0], dtype=torch.float32)
+    means = torch.zeros(7, 3)
+    means[6, 0] = 0.5  # the middle frame's, but 5 node spacings from the nodes: a floater
+    nodes = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0]])
+    mask, static = middle_template(t_means, means, times, 2, (0.0, 4.0), nodes, sigma=0.1)
+    assert mask.tolist() == [False, True, True, False, True, False, False]
     assert static["t_means"].tolist() == [2.0] * 3
     torch.testing.assert_close(static["log_t_scales"], torch.full((3,), math.log(4.0)))
 

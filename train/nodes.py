@@ -47,6 +47,8 @@ FIT_NEIGHBOURS = 128
 RIGID_NEIGHBOURS = 8
 #: Nodes are drawn among the Gaussians at least this opaque.
 OPAQUE = 0.1
+#: The one set of Gaussians for the clip keeps those within this many node spacings of a node (`middle_template`).
+TEMPLATE_REACH = 3.0
 #: Skin weights are recomputed every this many steps (the canonical means move) and after densification.
 SKIN_EVERY = 100
 
@@ -140,14 +142,18 @@ def to_canonical(model: Gaussians4D, key_times: torch.Tensor, nodes: TrackedNode
             "quats_l": q_l, "quats_r": q_r}
 
 
-def middle_template(t_means: torch.Tensor, key_times: torch.Tensor, middle: int,
-                    time_range: tuple[float, float]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def middle_template(t_means: torch.Tensor, means: torch.Tensor, key_times: torch.Tensor, middle: int,
+                    time_range: tuple[float, float], nodes: torch.Tensor,
+                    sigma: float) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """One set of Gaussians for the whole clip: the mask ``[N]`` of the Gaussians whose temporal mean is nearest key
-    `middle` (the canonical frame's), and their new temporal means (the clip's middle) and log temporal std-devs (the
-    clip's length), as `train.initialize.start_static` makes static ones: drawn at every time with at least 88 % of
-    their opacity, carried by the nodes."""
+    `middle` (the canonical frame's) and whose canonical mean lies within `TEMPLATE_REACH` node spacings `sigma` of
+    a node (the nodes sit on the opaque surface: one further off is a floater, which the nodes would drag along to
+    every time), and their new temporal means (the clip's middle) and log temporal std-devs (the clip's length), as
+    `train.initialize.start_static` makes static ones: drawn at every time with at least 88 % of their opacity,
+    carried by the nodes."""
     near = torch.argmin((t_means.detach()[:, None] - key_times.to(t_means)[None]).abs(), 1)
-    mask = near == middle
+    reach, _ = nearest_nodes(nodes.to(means), means.detach(), 1)
+    mask = (near == middle) & (reach[:, 0] <= TEMPLATE_REACH * sigma)
     t0, t1 = time_range
     k = int(mask.sum())
     return mask, {"t_means": torch.full((k,), 0.5 * (t0 + t1), dtype=t_means.dtype, device=t_means.device),

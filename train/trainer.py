@@ -442,7 +442,8 @@ class Trainer:
         canonical = to_canonical(model, key_times, tracked, sigma)
         strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in canonical.items()})
         if one:
-            keep, static = middle_template(self.params["t_means"], key_times, tracked.middle, self.time_range)
+            keep, static = middle_template(self.params["t_means"], self.params["means"], key_times, tracked.middle,
+                                           self.time_range, tracked.canonical, sigma)
             strategy.keep(self.params, self.optimizer, keep)
             strategy.replace_values(self.params, self.optimizer, static)
             self.strategy_state = strategy.initialize_state(len(self.params["means"]), self.device)

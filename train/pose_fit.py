@@ -92,9 +92,7 @@ def _template(model: Gaussians4D, t: float) -> Gaussians3D:
     with torch.no_grad():
         s = model.slice(t)
         keep = s.visible & (s.opacities > TEMPLATE_OPACITY)
-    return replace(s, means=s.means[keep].contiguous(), covariances=s.covariances[keep].contiguous(),
-                   opacities=s.opacities[keep].contiguous(), sh=s.sh[keep].contiguous(),
-                   visible=s.visible[keep].contiguous(), velocities=None, scales=None, quats=None)
+    return replace(s.select(keep), velocities=None)  # the nodes move it: no velocity of its own
 
 
 def _mean_error(gaussians: Gaussians3D, views: list, background: torch.Tensor) -> torch.Tensor:

@@ -118,7 +118,7 @@ class Trainer:
         self._pixel_weight: dict[tuple[int, int], torch.Tensor | None] = {}
         self._bytes: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor | None]] = {}  # see `_target`
         self.nodes: Nodes | None = None  # motion 'nodes', from the flow step on
-        #: motion 'nodes': what the switch to nodes decided (`_start_nodes`), None before it
+        #: motion 'nodes' or 'auto': what the switch to nodes decided (`_start_nodes`), None before it
         self.node_outcome: dict | None = None
         if resume:
             self._resume()

@@ -123,14 +123,21 @@ def start_static(raw: dict[str, torch.Tensor], share: float, time_range: tuple[f
     k = int(round(share * n))
     if k <= 0:
         return raw
-    t0, t1 = time_range
+    t_mean, log_t_scale = static_time(time_range)
     idx = torch.randperm(n, generator=generator)[:k]
     out = dict(raw)
     out["t_means"] = raw["t_means"].clone()
-    out["t_means"][idx] = 0.5 * (t0 + t1)
+    out["t_means"][idx] = t_mean
     out["log_t_scales"] = raw["log_t_scales"].clone()
-    out["log_t_scales"][idx] = math.log(max(t1 - t0, 1e-6))
+    out["log_t_scales"][idx] = log_t_scale
     return out
+
+
+def static_time(time_range: tuple[float, float]) -> tuple[float, float]:
+    """The temporal mean and log temporal std-dev of a static Gaussian: the clip's middle and its length (drawn at
+    every time of the clip with at least 88 % of its opacity)."""
+    t0, t1 = time_range
+    return 0.5 * (t0 + t1), math.log(max(t1 - t0, 1e-6))
 
 
 def foreground_masks(ds: Dataset) -> dict[int, np.ndarray]:

@@ -39,6 +39,7 @@ from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
+from .initialize import static_time
 from .motion import FlowTracks, flow_tracks
 
 #: A node moves by the rigid fit of this many nearest Gaussians' tracks.
@@ -148,17 +149,14 @@ def middle_template(t_means: torch.Tensor, means: torch.Tensor, key_times: torch
     """One set of Gaussians for the whole clip: the mask ``[N]`` of the Gaussians whose temporal mean is nearest key
     `middle` (the canonical frame's) and whose canonical mean lies within `TEMPLATE_REACH` node spacings `sigma` of
     a node (the nodes sit on the opaque surface: one further off is a floater, which the nodes would drag along to
-    every time), and their new temporal means (the clip's middle) and log temporal std-devs (the clip's length), as
-    `train.initialize.start_static` makes static ones: drawn at every time with at least 88 % of their opacity,
+    every time), and their new temporal means and log temporal std-devs: static (`train.initialize.static_time`),
     carried by the nodes."""
     near = torch.argmin((t_means.detach()[:, None] - key_times.to(t_means)[None]).abs(), 1)
     reach, _ = nearest_nodes(nodes.to(means), means.detach(), 1)
     mask = (near == middle) & (reach[:, 0] <= TEMPLATE_REACH * sigma)
-    t0, t1 = time_range
     k = int(mask.sum())
-    return mask, {"t_means": torch.full((k,), 0.5 * (t0 + t1), dtype=t_means.dtype, device=t_means.device),
-                  "log_t_scales": torch.full((k,), float(np.log(max(t1 - t0, 1e-6))), dtype=t_means.dtype,
-                                             device=t_means.device)}
+    t_mean, log_t_scale = static_time(time_range)
+    return mask, {"t_means": t_means.new_full((k,), t_mean), "log_t_scales": t_means.new_full((k,), log_t_scale)}
 
 
 def rigidity(canonical: torch.Tensor, positions: torch.Tensor, rotations: torch.Tensor, pairs: torch.Tensor,

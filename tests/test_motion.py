@@ -107,7 +107,7 @@ def test_the_trainer_sets_the_velocities_once(spinner, tmp_path, monkeypatch):
         torch.testing.assert_close(condition_on_time(trainer.model().covariance_4d().detach().double())[1],
                                    estimates[-1][0].double(), rtol=1e-3, atol=1e-3)
         return calls[-1]
-    monkeypatch.setattr("splatreel.train.trainer.flow_velocities", estimated)
+    monkeypatch.setattr("splatreel.train.flow_step.flow_velocities", estimated)
     original = trainer.set_flow_motion
     trainer.set_flow_motion = recorded
     before = None

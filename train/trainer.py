@@ -32,13 +32,12 @@ from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes
 from .flow import inbetween_views
-from .nodes import Nodes, middle_template, node_spacing, to_canonical, track_nodes
-from .pose_fit import fit_tracks, template_fits
+from .flow_step import flow_step
+from .nodes import Nodes
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import image_loss, mse, psnr_of_mse, scale_ratio_loss, smoothness_loss
 from .schedule import active_sh, scheduled_lrs
-from .motion import FlowTracks, flow_tracks, flow_velocities, with_velocities
 from .time_axis import TimeAxis, model_on_dataset_time, model_on_training_time, retimed_dataset
 
 def param_names(cfg: TrainConfig) -> tuple[str, ...]:
@@ -118,7 +117,7 @@ class Trainer:
         self._pixel_weight: dict[tuple[int, int], torch.Tensor | None] = {}
         self._bytes: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor | None]] = {}  # see `_target`
         self.nodes: Nodes | None = None  # motion 'nodes', from the flow step on
-        #: motion 'nodes' or 'auto': what the switch to nodes decided (`_start_nodes`), None before it
+        #: motion 'nodes' or 'auto': what the switch to nodes decided (`train.flow_step`), None before it
         self.node_outcome: dict | None = None
         if resume:
             self._resume()
@@ -395,62 +394,25 @@ class Trainer:
         return bool(at) and vstep >= at * self.cfg.iters
 
     def set_flow_motion(self) -> int:
-        """Set every Gaussian's velocity from the optical flow of the training videos (`motion`), or with motion
-        'nodes' the control nodes that carry them from now on (`nodes`), or with 'auto' the nodes where one set of
-        Gaussians can draw the clip and the velocities elsewhere; once. Returns how many Gaussians a camera saw on
-        the surface, or how many nodes were tracked (0: the data has no videos, nothing changed)."""
+        """The flow step (`train.flow_step`), once: the flow's velocities, or control nodes that carry the Gaussians
+        from now on (with motion 'auto' one set of them for the clip where it fits). Returns how many Gaussians a
+        camera saw, or how many nodes carry them (0: the data has no videos, nothing changed)."""
         self._flow_motion_done = True
-        model = self.model().to("cpu")
-        motion = self.cfg.motion
-        tracks = flow_tracks(model, self.ds, self.bg.cpu()) if motion != "nodes" else None
-        if motion in ("nodes", "auto"):
-            carried = self._start_nodes(model, tracks)
-            if carried or motion == "nodes":
-                return carried
-        velocity, seen = flow_velocities(model, self.ds, self.bg.cpu(), tracks)
-        if seen:
-            new = with_velocities(model, velocity, self.ds.frame_times)
-            strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in new.items()})
-        return seen
-
-    def _start_nodes(self, model: Gaussians4D, tracks: FlowTracks | None) -> int:
-        """Track the control nodes (motion 'nodes': each by its neighbours' fine-flow tracks; 'auto': all by the
-        rigid fit of `tracks`), then fit one rigid motion per key to the frames' images (`train.pose_fit`): where it
-        carries the middle frame's Gaussians to every frame (or `node_template` says so), keep only those, drawn at
-        every time and carried by the rigidly moving nodes; otherwise (motion 'nodes') every frame keeps its own,
-        carried by the flow's nodes. Moves the Gaussians to the canonical frame (`nodes`) and returns how many nodes
-        carry them: 0 when the data has no videos to track them in, or with motion 'auto' when one set does not fit
-        (the motion stays native)."""
-        cfg = self.cfg
-        auto = cfg.motion == "auto"
-        tracked = track_nodes(model, self.ds, self.bg, cfg.node_count, cfg.seed, tracks=tracks, rigid=auto)
-        if tracked is None:
-            return 0
-        key_times = torch.tensor(self.ds.frame_times, dtype=torch.float64)
-        sigma = node_spacing(tracked.canonical)
-        fit = None
-        if cfg.node_fit_steps and cfg.node_template != "off":
-            fit = fit_tracks(model, self.ds, self.bg, tracked, sigma, cfg.node_fit_steps, cfg.seed,
-                             give_up=cfg.node_template == "auto")
-        one = cfg.node_template == "on" or (cfg.node_template == "auto" and fit is not None and template_fits(fit))
-        self.node_outcome = {"template": one,
-                             "template_ratio": None if fit is None else round(fit.template_ratio(), 3)}
-        if auto and not one:
-            return 0
-        if one and fit is not None:
-            tracked = fit.nodes
-        canonical = to_canonical(model, key_times, tracked, sigma)
-        strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in canonical.items()})
-        if one:
-            keep, static = middle_template(self.params["t_means"], self.params["means"], key_times, tracked.middle,
-                                           self.time_range, tracked.canonical, sigma)
-            strategy.keep(self.params, self.optimizer, keep)
-            strategy.replace_values(self.params, self.optimizer, static)
+        step = flow_step(self.model().to("cpu"), self.ds, self.bg.cpu(), self.cfg, self.time_range)
+        if step.outcome is not None:
+            self.node_outcome = step.outcome
+        if step.values:
+            strategy.replace_values(self.params, self.optimizer, {k: v.to(self.device) for k, v in step.values.items()})
+        if step.keep is not None:  # one set of Gaussians for the clip
+            strategy.keep(self.params, self.optimizer, step.keep.to(self.device))
+            strategy.replace_values(self.params, self.optimizer,
+                                    {k: v.to(self.device) for k, v in step.kept_values.items()})
             self.strategy_state = strategy.initialize_state(len(self.params["means"]), self.device)
             self._nbr = None
-        self.nodes = Nodes(key_times, tracked.canonical, tracked.positions, tracked.rotations, sigma,
-                           *self._node_lrs(), self.device)
-        return len(tracked.canonical)
+        if step.nodes is not None:
+            self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64), step.nodes.canonical,
+                               step.nodes.positions, step.nodes.rotations, step.sigma, *self._node_lrs(), self.device)
+        return step.count
 
     def elapsed(self) -> float:
         """Seconds this run has spent, across resumes."""

@@ -1,0 +1,96 @@
+"""The flow step: once in a run (config ``flow_motion_at``), the optical flow of the training videos sets the motion.
+
+What it sets depends on ``motion`` (`train.config.MOTIONS`):
+
+* linear, quadratic: every Gaussian a camera saw gets its velocity from the flow (`train.motion`);
+* nodes: control nodes, each tracked by its neighbours' flow, carry the Gaussians from then on (`train.nodes`), each
+  frame's own;
+* auto: the nodes move by one rigid motion per key frame, fitted to the frames' images (`train.pose_fit`). Where that
+  carries the middle frame's Gaussians to every frame, those alone draw the clip, static in time, carried by the
+  nodes; elsewhere the velocities as for linear/quadratic.
+
+`flow_step` decides and computes; the trainer applies what it returns to its parameters and optimizer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from splatreel.datasets import Dataset
+from splatreel.model import Gaussians4D
+
+from .config import TrainConfig
+from .motion import FlowTracks, flow_tracks, flow_velocities, with_velocities
+from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, track_nodes
+from .pose_fit import fit_tracks, template_fits
+
+
+@dataclass
+class FlowStep:
+    """What the flow step changes.
+
+    Attributes:
+        values: new values of trained tensors for every Gaussian (the flow's velocities folded into each 4D shape,
+            or the Gaussians moved to the nodes' canonical frame); empty when nothing changes.
+        count: Gaussians a camera saw (velocities), or nodes that carry the Gaussians from now on; 0: nothing changed.
+        nodes: the tracked nodes when they carry the Gaussians from now on, and `sigma` their spacing.
+        keep: ``[N]`` with one set of Gaussians for the clip, the ones that stay (after `values`), and `kept_values`
+            their new (static) temporal means and std-devs.
+        outcome: motion nodes and auto: what the switch to nodes decided, ``{"template": bool, "template_ratio":
+            float | None}`` (`Trainer.node_outcome`); None when no switch was tried or the data has no videos.
+    """
+
+    values: dict[str, torch.Tensor]
+    count: int
+    nodes: TrackedNodes | None = None
+    sigma: float = 0.0
+    keep: torch.Tensor | None = None
+    kept_values: dict[str, torch.Tensor] | None = None
+    outcome: dict | None = None
+
+
+def flow_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: TrainConfig,
+              time_range: tuple[float, float]) -> FlowStep:
+    """The flow step (module doc) for `model` (on the CPU, on `ds`'s times) under `cfg`'s motion."""
+    tracks = flow_tracks(model, ds, background) if cfg.motion != "nodes" else None
+    outcome = None
+    if cfg.motion in ("nodes", "auto"):
+        step = _node_step(model, ds, background, cfg, time_range, tracks)
+        if step.count or cfg.motion == "nodes":
+            return step
+        outcome = step.outcome
+    velocity, seen = flow_velocities(model, ds, background, tracks)
+    return FlowStep(with_velocities(model, velocity, ds.frame_times) if seen else {}, seen, outcome=outcome)
+
+
+def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: TrainConfig,
+               time_range: tuple[float, float], tracks: FlowTracks | None) -> FlowStep:
+    """Track the control nodes (motion 'nodes': each by its neighbours' fine-flow tracks; 'auto': all by the rigid fit
+    of `tracks`), then fit one rigid motion per key to the frames' images: where it carries the middle frame's
+    Gaussians to every frame (or ``node_template`` says so), keep only those; otherwise (motion 'nodes') every frame
+    keeps its own, carried by the flow's nodes. Nothing changes when the data has no videos to track the nodes in,
+    or with motion 'auto' when one set does not fit."""
+    auto = cfg.motion == "auto"
+    tracked = track_nodes(model, ds, background, cfg.node_count, cfg.seed, tracks=tracks, rigid=auto)
+    if tracked is None:
+        return FlowStep({}, 0)
+    sigma = node_spacing(tracked.canonical)
+    fit = None
+    if cfg.node_fit_steps and cfg.node_template != "off":
+        fit = fit_tracks(model, ds, background, tracked, sigma, cfg.node_fit_steps, cfg.seed,
+                         give_up=cfg.node_template == "auto")
+    one = cfg.node_template == "on" or (cfg.node_template == "auto" and fit is not None and template_fits(fit))
+    outcome = {"template": one, "template_ratio": None if fit is None else round(fit.template_ratio(), 3)}
+    if auto and not one:
+        return FlowStep({}, 0, outcome=outcome)
+    if one and fit is not None:
+        tracked = fit.nodes
+    key_times = torch.tensor(ds.frame_times, dtype=torch.float64)
+    canonical = to_canonical(model, key_times, tracked, sigma)
+    keep = kept = None
+    if one:  # the mask on the trained (float32) values, as the trainer holds them
+        keep, kept = middle_template(model.t_means.detach().float(), canonical["means"].float(), key_times,
+                                     tracked.middle, time_range, tracked.canonical, sigma)
+    return FlowStep(canonical, len(tracked.canonical), tracked, sigma, keep, kept, outcome)

@@ -1,4 +1,4 @@
-"""Trained checkpoints shipped with the package: ``splatreel train`` (the default auto recipe, 3000 iterations) fitted
+"""Trained checkpoints shipped with the package: ``splatreel train`` (the default auto recipe, 600 iterations) fitted
 to a procedural sample.
 
 They give the viewer, the exporters, their tests and first-time users a real trained model without training one.

@@ -11,9 +11,9 @@ import torch
 from splatreel.checkpoint import load_checkpoint
 from splatreel.cli import main
 from splatreel.errors import SplatreelError
-from splatreel.model import Gaussians4D
 from splatreel.samples import TRAINED, DatasetConfig, MeshRenderer, get_sample, trained_checkpoint
 from splatreel.samples import dataset as sample_dataset
+from splatreel.skinned import SkinnedGaussians
 from splatreel.train import losses
 from splatreel.viewer.renderer import RenderSettings, render_image
 
@@ -37,9 +37,11 @@ def test_bundled_checkpoint_is_small_and_says_how_it_was_made(bundled):
     path = trained_checkpoint()
     assert path.stat().st_size <= 10 * 2 ** 20
     assert TRAINED == ("spinner",)
-    assert isinstance(bundled.model, Gaussians4D) and 50_000 < len(bundled.model) <= 100_000  # densified, capped
+    # the default recipe on a rigid object: one set of Gaussians for the clip, carried by rigidly moving nodes
+    assert isinstance(bundled.model, SkinnedGaussians) and 10_000 < len(bundled.model) <= 60_000  # densified, capped
+    assert bundled.training["nodes"]["template"] and bundled.model.num_keys == 16
     assert bundled.provenance["tool"] == "splatreel train"
-    assert bundled.provenance["preset"] == "auto" and bundled.training["iteration"] == 3000
+    assert bundled.provenance["preset"] == "auto" and bundled.training["iteration"] == 600
     assert bundled.views and bundled.background == (1.0, 1.0, 1.0)  # its cameras and the D-NeRF white
 
 

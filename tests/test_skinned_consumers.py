@@ -123,9 +123,11 @@ def test_export_web_writes_the_canonical_gaussians_their_skin_and_the_node_keys(
     np.testing.assert_array_equal(read_array(quantized, "node_positions"), model.node_positions.float().numpy())
     assert "wrote" in capsys.readouterr().out
     # formats of linearly moving Gaussians refuse it in one line
-    assert main(["export", "splatv", str(checkpoint), "--out", str(tmp_path / "m.splatv"), "--quiet"]) == 1
-    err = capsys.readouterr().err.strip()
-    assert "a skinned model has none" in err and len(err.splitlines()) == 1, err
+    for fmt in ("splatv", "4dgs"):
+        assert main(["export", fmt, str(checkpoint), "--out", str(tmp_path / f"m.{fmt}"), "--quiet"]) == 1
+        err = capsys.readouterr().err.strip()
+        assert "a skinned model has none" in err and len(err.splitlines()) == 1, err
+        assert not (tmp_path / f"m.{fmt}").exists()
 
 
 def test_the_web_data_of_a_skinned_model_is_about_that_of_its_canonical_gaussians(model):

@@ -121,16 +121,17 @@ def test_accelerations_are_the_players_quadratic_term_and_come_back(model, tmp_p
         assert np.median(miss[away]) > 0.05
 
 
-def test_the_bundled_model_renders_the_same_after_the_round_trip(tmp_path, capsys):
-    from splatreel.samples import trained_checkpoint
+def test_a_sample_model_renders_the_same_after_the_round_trip(tmp_path, capsys):
+    """On the spinner sample's exact model (20k Gaussians of a real object; the bundled trained model is skinned,
+    which .splatv cannot hold: tests/test_skinned_consumers.py)."""
+    from splatreel.samples import build_model
 
-    ckpt = trained_checkpoint("spinner")
+    ckpt = save_checkpoint(tmp_path / "spinner.safetensors", build_model("spinner"), background=(1.0, 1.0, 1.0))
     out, back = tmp_path / "s.splatv", tmp_path / "back.safetensors"
     assert main(["export", "splatv", str(ckpt), "--out", str(out), "--quiet"]) == 0
     assert "the whole animation" in capsys.readouterr().out
     assert main(["convert", str(out), "--out", str(back)]) == 0
     assert min(round_trip_psnrs(ckpt, back)) > 35.0
-
 
 
 def test_what_splatv_cannot_hold_is_a_clear_error(tmp_path, capsys):

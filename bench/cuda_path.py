@@ -42,6 +42,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def _leaves(model, device):
     """The model on `device`, float32, every per-Gaussian tensor a leaf that records its gradient."""
     m = model.to(device=device, dtype=torch.float32)
+    if m.kind == "skinned":  # what training learns: the canonical Gaussians (the nodes carry them)
+        return replace(m, gaussians=_leaves(m.gaussians, device))
     return replace(m, **{k: v.detach().clone().requires_grad_() for k, v in m.tensors().items()})
 
 

@@ -14,7 +14,7 @@ axis ratio is above 10, on the 4D Gaussians' spatial scales), `sliced_needle_sha
 that slicing shows), `test_per_view` (each test view's camera, time, PSNR and `at_frame`: whether its time is a
 training frame's or in between), the decisions of the recipe, `nodes` (with control nodes, what the switch to them
 decided: `template`, one set of Gaussians for the clip; `template_ratio`, the carried template's worst loss over a
-frame's own), what the alpha-agreement test said, and the baselines' PSNR on the same test views:
+frame over its loss at the middle frame), what the alpha-agreement test said, and the baselines' PSNR on the same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.
@@ -106,22 +106,22 @@ def step_breakdown(trainer, repeats: int = 10) -> dict[str, float]:
 
 
 def reference_ms(device: str | None, repeats: int = 12) -> float:
-    """Median milliseconds of a fixed piece of work: slicing and rasterizing the bundled model at its first recorded
-    camera (at 256x256), forward and backward (`cuda_path.time_step`, after a warm-up). Timed beside each sample, it
-    says how fast the machine was during that run: step counts from runs on different days compare through it (this
-    shared machine's speed drifts by a third)."""
-    from dataclasses import replace
-
+    """Median milliseconds of a fixed piece of work: slicing and rasterizing the spinner sample's exact model (60,000
+    native Gaussians, deterministic) at the sample's first training camera (256x256), forward and backward
+    (`cuda_path.time_step`, after a warm-up). Timed beside each sample, it says how fast the machine was during that
+    run: step counts from runs on different days compare through it (this shared machine's speed drifts by a third).
+    Until 2026-11-28 the work was the bundled checkpoint's (59,095 native Gaussians, 62-66 ms on a quiet machine);
+    it is the exact model now so that a re-bundled sample does not move it."""
     import torch
     from cuda_path import time_step  # bench/cuda_path.py, this script's neighbour
 
-    from splatreel.checkpoint import load_checkpoint
+    from splatreel.samples import DatasetConfig, build_model, train_views
     from splatreel.train.trainer import pick_device
 
-    ckpt = load_checkpoint(ROOT / "samples" / "spinner.safetensors")
-    view = replace(ckpt.views[0], camera=ckpt.views[0].camera.resized(256, 256))
-    background = torch.tensor(ckpt.background, dtype=torch.float32)
-    return round(time_step(ckpt.model, [view], background, pick_device(device or "auto"), repeats), 2)
+    view = train_views(DatasetConfig())[0]
+    model = build_model("spinner", num_gaussians=60_000)
+    background = torch.ones(3)
+    return round(time_step(model, [view], background, pick_device(device or "auto"), repeats), 2)
 
 
 def needle_share(trainer, ratio: float = 10.0) -> float:

@@ -2,8 +2,8 @@
 
     python bench/viewer.py [--json OUT.json] [--cases sample,200k,1m] [--sizes 512x512,1280x720] [--frames N]
 
-Cases: the bundled sample (``splatreel.samples.trained_checkpoint("spinner")``, about 96k trained Gaussians) and
-synthetic native 4D models of 200k and 1M Gaussians (SH degree 3, moving and fading; points in a ball of radius
+Cases: the bundled sample (``splatreel.samples.trained_checkpoint("spinner")``, a skinned model of about 23k trained
+Gaussians) and synthetic native 4D models of 200k and 1M Gaussians (SH degree 3, moving and fading; points in a ball of radius
 0.5, std-devs 0.01 x e^(+-0.5), camera at distance 1.5 with a 60 degree field of view). Every measured frame has a new camera (2 degrees further round) and
 a new model time, so each one re-sorts, as a playing, orbiting viewer does.
 

@@ -27,6 +27,11 @@ from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, tr
 from .pose_fit import fit_tracks, template_fits
 
 
+#: Fewest Gaussians the one set for the clip may keep; with fewer (nodes that collapsed onto one point leave none
+#: within reach) every frame keeps its own, or with motion 'auto' the motion stays native.
+MIN_TEMPLATE = 4
+
+
 @dataclass
 class FlowStep:
     """What the flow step changes.
@@ -83,14 +88,18 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
                          give_up=cfg.node_template == "auto")
     one = cfg.node_template == "on" or (cfg.node_template == "auto" and fit is not None and template_fits(fit))
     outcome = {"template": one, "template_ratio": None if fit is None else round(fit.template_ratio(), 3)}
-    if auto and not one:
-        return FlowStep({}, 0, outcome=outcome)
     if one and fit is not None:
         tracked = fit.nodes
     key_times = torch.tensor(ds.frame_times, dtype=torch.float64)
-    canonical = to_canonical(model, key_times, tracked, sigma)
-    keep = kept = None
+    keep = kept = canonical = None
+    if one or not auto:
+        canonical = to_canonical(model, key_times, tracked, sigma)
     if one:  # the mask on the trained (float32) values, as the trainer holds them
         keep, kept = middle_template(model.t_means.detach().float(), canonical["means"].float(), key_times,
                                      tracked.middle, time_range, tracked.canonical, sigma)
+        if int(keep.sum()) < MIN_TEMPLATE:  # degenerate nodes (e.g. all at one point early in a tiny run)
+            one, keep, kept = False, None, None
+            outcome = {**outcome, "template": False}
+    if auto and not one:
+        return FlowStep({}, 0, outcome=outcome)
     return FlowStep(canonical, len(tracked.canonical), tracked, sigma, keep, kept, outcome)

@@ -186,7 +186,8 @@ def node_outcome_line(outcome: dict | None, motion: str) -> str | None:
     if outcome is None:
         return None
     ratio = outcome["template_ratio"]
-    fit = "" if ratio is None or ratio == float("inf") else f" (the worst frame fitted: {ratio:.2f} times its own error)"
+    fit = "" if ratio is None or ratio == float("inf") else \
+        f" (its worst frame fitted: {ratio:.2f} times its error at the middle frame)"
     if outcome["template"]:
         return ("one set of Gaussians for the whole clip: one rigid motion per frame carries the middle frame's to "
                 f"every frame{fit}; --node-template off to change")

@@ -14,6 +14,7 @@ What it sets depends on ``motion`` (`train.config.MOTIONS`):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -87,19 +88,22 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
         fit = fit_tracks(model, ds, background, tracked, sigma, cfg.node_fit_steps, cfg.seed,
                          give_up=cfg.node_template == "auto")
     one = cfg.node_template == "on" or (cfg.node_template == "auto" and fit is not None and template_fits(fit))
-    outcome = {"template": one, "template_ratio": None if fit is None else round(fit.template_ratio(), 3)}
+    ratio = None if fit is None else fit.template_ratio()  # inf when nothing was fitted: none (the metadata is JSON)
+    outcome = {"template": one, "template_ratio": round(ratio, 3) if ratio is not None and math.isfinite(ratio)
+               else None}
     if one and fit is not None:
         tracked = fit.nodes
+    if auto and not one:
+        return FlowStep({}, 0, outcome=outcome)
     key_times = torch.tensor(ds.frame_times, dtype=torch.float64)
-    keep = kept = canonical = None
-    if one or not auto:
-        canonical = to_canonical(model, key_times, tracked, sigma)
+    canonical = to_canonical(model, key_times, tracked, sigma)
+    keep = kept = None
     if one:  # the mask on the trained (float32) values, as the trainer holds them
         keep, kept = middle_template(model.t_means.detach().float(), canonical["means"].float(), key_times,
                                      tracked.middle, time_range, tracked.canonical, sigma)
         if int(keep.sum()) < MIN_TEMPLATE:  # degenerate nodes (e.g. all at one point early in a tiny run)
-            one, keep, kept = False, None, None
             outcome = {**outcome, "template": False}
-    if auto and not one:
-        return FlowStep({}, 0, outcome=outcome)
+            if auto:
+                return FlowStep({}, 0, outcome=outcome)
+            keep = kept = None
     return FlowStep(canonical, len(tracked.canonical), tracked, sigma, keep, kept, outcome)

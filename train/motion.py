@@ -46,6 +46,11 @@ COVERED_ALPHA = 0.5
 NEIGHBOURS = 4
 
 
+def nearest_key(t_means: torch.Tensor, key_times: torch.Tensor) -> torch.Tensor:
+    """``[N]`` index of the key time nearest each temporal mean (the frame a Gaussian belongs to)."""
+    return torch.argmin((t_means.detach()[:, None] - key_times.to(t_means)[None]).abs(), 1)
+
+
 @dataclass
 class _Motion:
     """Each Gaussian's motion and where it is at the training frame nearest its temporal mean (float64)."""
@@ -63,7 +68,7 @@ class _Motion:
         cov3, velocity, var_t = condition_on_time(model.covariance_4d().detach().double())
         t = torch.tensor(times, dtype=torch.float64)
         t_means = model.t_means.detach().double()
-        frame = torch.argmin((t_means[:, None] - t[None, :]).abs(), 1)
+        frame = nearest_key(t_means, t)
         dt = t[frame] - t_means
         a = model.accelerations_or_zeros().detach().double()
         position = model.means.detach().double() + velocity * dt[:, None] + 0.5 * a * dt[:, None] ** 2
@@ -177,7 +182,8 @@ def flow_velocities(model: Gaussians4D, ds: Dataset, background: torch.Tensor,
 
     model = model.detach()
     motion = _Motion.of(model, ds.frame_times)
-    tracks = tracks or _tracks(model, motion, ds, background)
+    if tracks is None:
+        tracks = _tracks(model, motion, ds, background)
     frame_of, position, count = tracks.frame, tracks.position, tracks.count
     seen = count > 0
     estimate = np.zeros((len(model), 3))

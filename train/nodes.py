@@ -40,7 +40,7 @@ from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
 from .initialize import static_time
-from .motion import FlowTracks, flow_tracks
+from .motion import FlowTracks, flow_tracks, nearest_key
 
 #: A node moves by the rigid fit of this many nearest Gaussians' tracks.
 FIT_NEIGHBOURS = 128
@@ -83,7 +83,8 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
     (module doc) by `tracks` (default: the fine flow's); `rigid`: all of them by the rigid fit of every track of a
     frame (one rigid body). None when no camera films consecutive frames."""
     model = model.detach().to("cpu")
-    tracks = tracks or flow_tracks(model, ds, background.cpu(), fine=True)
+    if tracks is None:
+        tracks = flow_tracks(model, ds, background.cpu(), fine=True)
     frames = len(ds.frame_times)
     if not tracks.count.any() or frames < 2:
         return None
@@ -124,7 +125,7 @@ def to_canonical(model: Gaussians4D, key_times: torch.Tensor, nodes: TrackedNode
     split's children along a motion that no longer exists."""
     with torch.no_grad():
         g = model.detach().to("cpu", torch.float64)
-        near = torch.argmin((g.t_means[:, None] - key_times.double()[None]).abs(), 1)
+        near = nearest_key(g.t_means, key_times)
         means, turns = torch.empty_like(g.means), torch.empty(len(g), 3, 3, dtype=torch.float64)
         for k in near.unique().tolist():
             rows = (near == k).nonzero()[:, 0]
@@ -151,7 +152,7 @@ def middle_template(t_means: torch.Tensor, means: torch.Tensor, key_times: torch
     a node (the nodes sit on the opaque surface: one further off is a floater, which the nodes would drag along to
     every time), and their new temporal means and log temporal std-devs: static (`train.initialize.static_time`),
     carried by the nodes."""
-    near = torch.argmin((t_means.detach()[:, None] - key_times.to(t_means)[None]).abs(), 1)
+    near = nearest_key(t_means, key_times)
     reach, _ = nearest_nodes(nodes.to(means), means.detach(), 1)
     mask = (near == middle) & (reach[:, 0] <= TEMPLATE_REACH * sigma)
     k = int(mask.sum())

@@ -42,6 +42,7 @@ from splatreel.skinned import carry, skin_weights
 
 from .data import downscale_view
 from .evaluate import view_target
+from .motion import nearest_key
 from .nodes import TrackedNodes
 
 #: The fits render the training images downscaled by a whole factor to about this many pixels across (256 px: 1/4).
@@ -97,7 +98,7 @@ def _skew(w: torch.Tensor) -> torch.Tensor:
 
 def _template(model: Gaussians4D, times: list[float], middle: int) -> Gaussians3D:
     with torch.no_grad():
-        near = torch.argmin((model.t_means[:, None] - torch.tensor(times).to(model.t_means)[None]).abs(), 1)
+        near = nearest_key(model.t_means, torch.tensor(times))
         s = model.slice(float(times[middle]))
         keep = s.visible & (s.opacities > TEMPLATE_OPACITY) & (near == middle)
     return replace(s.select(keep), velocities=None)  # the nodes move it: no velocity of its own
@@ -120,7 +121,7 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
                steps: int, seed: int = 0, give_up: bool = False) -> FittedTracks:
     """The rigid motion of `tracked` (the flow's nodes) at every key, corrected by `steps` Adam steps against that
     frame's training images (module doc), as nodes that all move alike; `model` on `ds`'s times. Non-finite flow
-    tracks, or a middle frame with no opaque Gaussian, give `tracked` unchanged and an infinite template loss (the
+    tracks, or a template of fewer than 4 Gaussians, give `tracked` unchanged and an infinite template loss (the
     template does not fit). `give_up`: stop at the first key where the
     template does not fit (`TEMPLATE_FIT`; the keys not fitted get an infinite template loss), as a trainer that only
     wants the template when it fits can: on data that bends, the first key or two already tell."""

@@ -98,7 +98,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--node-template", choices=NODE_TEMPLATES,
                    help="with nodes: keep only the middle frame's Gaussians, drawn at every time and carried by the "
                         "nodes, one set for the whole clip (on), never (off), or when the nodes carry them to every "
-                        "frame and they draw it nearly as well as the frame's own Gaussians (auto) (default: auto; a "
+                        "frame and they draw every frame nearly as well as the middle one (auto) (default: auto; a "
                         "resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "

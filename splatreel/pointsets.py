@@ -8,8 +8,10 @@ import numpy as np
 
 
 def farthest_point_subset(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices ``(count,)`` of `count` well-spread rows of `points` ``(C, 3)`` by greedy farthest-point sampling
-    (starting from a random row): each pick is the point farthest from all picks so far. O(count * C)."""
+    """Indices ``(k,)`` of `count` well-spread rows of `points` ``(C, 3)`` by greedy farthest-point sampling
+    (starting from a random row): each pick is the point farthest from all picks so far. O(count * C). Fewer than
+    `count` (k) when the points hold fewer distinct positions: a repeated position is no new pick (control nodes
+    drawn twice at one place would have a zero median spacing)."""
     count = min(count, len(points))
     x, y, z = (np.ascontiguousarray(points[:, k], dtype=np.float64) for k in range(3))
     picked = np.empty(count, dtype=np.int64)
@@ -17,7 +19,10 @@ def farthest_point_subset(points: np.ndarray, count: int, rng: np.random.Generat
     dist = (x - x[i]) ** 2 + (y - y[i]) ** 2 + (z - z[i]) ** 2  # squared distance to the nearest pick
     d2, tmp = np.empty_like(dist), np.empty_like(dist)
     for k in range(1, count):
-        picked[k] = i = int(dist.argmax())
+        i = int(dist.argmax())
+        if dist[i] == 0.0:  # every point sits on a pick
+            return picked[:k]
+        picked[k] = i
         # in-place per coordinate: ~10x faster than summing a (C, 3) temporary
         np.subtract(x, x[i], out=d2)
         np.multiply(d2, d2, out=d2)

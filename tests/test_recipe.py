@@ -278,8 +278,10 @@ def test_resume_with_densification_equals_uninterrupted(matrix, tmp_path):
     Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=11)
     Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
     a, b = load_checkpoint(tmp_path / "a.safetensors").model, load_checkpoint(tmp_path / "b.safetensors").model
-    assert len(a.means) > 1000  # it did densify
-    assert a.accelerations is not None and a.accelerations.abs().max() > 0  # the recipe's quadratic motion
+    assert len(a) > 1000  # it did densify
+    # the recipe's motion auto on a rigid box: one set of Gaussians carried by the nodes from the flow step (step 7)
+    # on, so the resumption (at step 11) restores the node poses and their optimizer too
+    assert a.kind == "skinned" and a.num_nodes > 100
     for k, v in a.tensors().items():
         torch.testing.assert_close(v, b.tensors()[k], rtol=0, atol=0)
 

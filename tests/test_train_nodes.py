@@ -16,7 +16,7 @@ from splatreel.cli.train import node_outcome_line
 from splatreel.covariance import condition_on_time
 from splatreel.samples import build_model
 from splatreel.samples.objects import Spinner
-from splatreel.pointsets import rigid_fit
+from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians
 from splatreel.train.data import load_dataset
 from splatreel.skinned import carry, skin_weights
@@ -166,6 +166,19 @@ def test_rigidity_is_zero_for_a_rigid_motion_only():
     bent = nodes.positions.clone()
     bent[3, :10] += 0.1
     assert float(rigidity(nodes.canonical, bent, nodes.rotations, pairs, w, 0.5)) > 1e-4
+
+
+def test_nodes_are_never_drawn_twice_at_one_place():
+    """Tracks repeat positions (a tiny run had 1,047 tracks at 250 places): asked for more nodes than places, the
+    sampling gives one node per place, not copies whose zero median spacing would make the skin weights a delta."""
+    rng = np.random.default_rng(0)
+    places = rng.normal(size=(250, 3))
+    points = places[rng.integers(0, 250, 1047)]
+    picked = farthest_point_subset(points, 512, np.random.default_rng(1))
+    assert len(np.unique(points[picked], axis=0)) == len(picked) == len(np.unique(points, axis=0))
+    assert node_spacing(torch.from_numpy(points[picked])) > 0.05
+    distinct = farthest_point_subset(places, 100, np.random.default_rng(1))
+    assert len(distinct) == 100 and len(set(distinct.tolist())) == 100  # distinct points: as many as asked
 
 
 @pytest.fixture(scope="module")

@@ -28,8 +28,9 @@ from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, tr
 from .pose_fit import fit_tracks, template_fits
 
 
-#: Fewest Gaussians the one set for the clip may keep; with fewer (nodes that collapsed onto one point leave none
-#: within reach) every frame keeps its own, or with motion 'auto' the motion stays native.
+#: Fewest Gaussians the one set for the clip may keep; with fewer (nodes out of reach of the middle frame's
+#: Gaussians) every frame keeps its own, or with motion 'auto' the motion stays native. A guard: since nodes are no
+#: longer drawn twice at one place (`splatreel.pointsets.farthest_point_subset`), no run has come near it.
 MIN_TEMPLATE = 4
 
 
@@ -101,7 +102,7 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
     if one:  # the mask on the trained (float32) values, as the trainer holds them
         keep, kept = middle_template(model.t_means.detach().float(), canonical["means"].float(), key_times,
                                      tracked.middle, time_range, tracked.canonical, sigma)
-        if int(keep.sum()) < MIN_TEMPLATE:  # degenerate nodes (e.g. all at one point early in a tiny run)
+        if int(keep.sum()) < MIN_TEMPLATE:  # degenerate nodes
             outcome = {**outcome, "template": False}
             if auto:
                 return FlowStep({}, 0, outcome=outcome)

@@ -24,9 +24,10 @@ rasterizer forward, losses, backward, the regularisers and Adam, in milliseconds
 images, and what it does once (finding the live Gaussians, the regularisers, the Adam update) is shared out among
 them. On a CUDA device each phase is synchronised before it is timed.
 
-`reference_ms` is a fixed piece of work timed beside each sample: the bundled model sliced and rasterized at its
-first recorded camera at 256², forward and backward (median of 12). This shared machine's speed drifts by up to a
-third between days; step counts of runs on different days compare through it.
+`reference_ms` is a fixed piece of work timed beside each sample: the spinner sample's exact model (60,000 native
+Gaussians) sliced and rasterized at the sample's first training camera at 256², forward and backward (median of 12).
+This shared machine's speed drifts by a third between days, and more within one; step counts of runs at different
+times compare through it.
 
 `--datasets DIR` keeps the generated datasets in DIR/NAME and reads them from there when present (the GL renderer
 that makes them is then not needed: a machine without a display driver can run datasets made elsewhere).

@@ -234,18 +234,31 @@ class SkinnedGaussians:
         `rows` alike) with the means and covariances carried by the nodes. `velocities` are the carried means'
         central difference over a thousandth of the clip (None without `with_velocities`)."""
         native = self.gaussians.slice(t, sh_degree_t, rows)
+        all_means = self.gaussians.means
+        if rows is not None and rows.dtype == torch.bool:
+            rows = rows.nonzero()[:, 0]
         nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
-        means = self.gaussians.means if rows is None else take_rows(self.gaussians.means, rows)
-        canonical = self.node_canonical.to(means)
-        positions, turns = (x.to(means) for x in self.poses(t))
-        moved, cov = carry(means, native.covariances, nodes, weights.to(means), canonical, positions, turns)
+        weights, canonical = weights.to(all_means), self.node_canonical.to(all_means)
+        fused = all_means.device.type == "cpu" and all_means.dtype == torch.float32 and not (
+            canonical.requires_grad or weights.requires_grad)
+        if fused:  # float32 on the CPU: the kernel of `splatreel.carrying` (the same math, one pass)
+            from .carrying import fused_carry  # numba: imported on first use, not with the model
+
+            rows = torch.arange(len(all_means)) if rows is None else rows
+
+            def carried(cov3, poses):
+                return fused_carry(all_means, cov3, rows, nodes, weights, canonical, *(x.to(all_means) for x in poses))
+        else:
+            means = all_means if rows is None else take_rows(all_means, rows)
+
+            def carried(cov3, poses):
+                return carry(means, cov3, nodes, weights, canonical, *(x.to(means) for x in poses))
+        moved, cov = carried(native.covariances, self.poses(t))
         if not self.with_velocities:
             return replace(native, means=moved, covariances=cov, velocities=None)
         with torch.no_grad():
             h = 1e-3 * (self.duration or 1.0)
-            ahead, _ = carry(means, None, nodes, weights.to(means), canonical, *(x.to(means) for x in self.poses(t + h)))
-            behind, _ = carry(means, None, nodes, weights.to(means), canonical,
-                              *(x.to(means) for x in self.poses(t - h)))
+            ahead, behind = carried(None, self.poses(t + h))[0], carried(None, self.poses(t - h))[0]
         return replace(native, means=moved, covariances=cov, velocities=(ahead - behind) / (2 * h))
 
     def centres(self, times) -> list[tuple[Tensor, Tensor]]:

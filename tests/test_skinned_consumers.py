@@ -63,7 +63,7 @@ def read_array(data: bytes, name: str) -> np.ndarray:
 
 def test_viewer_arrays_are_the_canonical_gaussians_and_their_skin(model):
     """Made once, valid at every time: the canonical native Gaussians' arrays and each one's skin. Carried to t on
-    the CPU (`posed`: the sort's and the selection markers' numba twin of `splatreel.skinned.carry`) they are the
+    the CPU (`posed`: the sort's and the selection markers', by the trainer's fused kernel) they are the
     slice's means and covariances."""
     assert not needs_per_frame_upload(model)
     arrays, native = to_arrays(model), to_arrays(model.gaussians)
@@ -78,6 +78,7 @@ def test_viewer_arrays_are_the_canonical_gaussians_and_their_skin(model):
         np.testing.assert_allclose(at.mean_t[:, :3], g.means.numpy(), rtol=1e-5, atol=1e-5)
         np.testing.assert_allclose(at.cov[:, :6], g.covariances[:, triu[0], triu[1]].numpy(), rtol=1e-4, atol=1e-7)
         assert not at.motion[:, :3].any() and not at.accel.any()  # the sort must not move them again
+        np.testing.assert_array_equal(at.cov[:, 6:], arrays.cov[:, 6:])  # opacity and speed stay
         np.testing.assert_allclose(centres_at(arrays, t, np.array([4, 9])), g.means[[4, 9]].numpy(), atol=1e-5)
     part = arrays.select(np.array([3, 11]))  # a crop keeps each Gaussian's skin
     np.testing.assert_array_equal(posed(part, 0.4).mean_t, posed(arrays, 0.4).mean_t[[3, 11]])

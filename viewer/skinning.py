@@ -12,19 +12,19 @@ Node texture: row k holds node k, 4 RGBA texels per pose set: its rotation's row
 in w, then its canonical position c_k. Set 0 is the pose at t, sets 1 and 2 at t - h and t + h (h = `SPEED_STEP`
 of the clip, as `SkinnedGaussians.slice`'s velocities), which the speed mode differences.
 
-The CPU sort needs each Gaussian's carried mean and covariance at t as well: `posed` computes them in one numba
-pass, the fused twin of `splatreel.skinned.carry` (the one statement of the math in Python; the tests hold the two
-together), without the ``[N, K, 3, 3]`` gathers that make the torch composition cost ~100 ms at 57k Gaussians.
+The CPU sort needs each Gaussian's carried mean and covariance at t as well: `posed` computes them with the
+trainer's fused kernel (`splatreel.carrying`, held to `splatreel.skinned.carry` by the tests), without the
+``[N, K, 3, 3]`` gathers that make the torch composition cost ~100 ms at 57k Gaussians.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import numba
 import numpy as np
 import torch
 
+from splatreel.carrying import carry_forward
 from splatreel.skinned import node_poses, padded_skin
 
 #: The central difference step of the speed mode, as a share of the clip (`SkinnedGaussians.slice`'s velocities).
@@ -36,6 +36,8 @@ NODE_TEXELS = 4
 #: (row, column) of the covariance entries in a `SplatArrays.cov` row (`splats` packs them; here, not there, since
 #: splats imports this module).
 COV_TRIU = np.array([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)], np.int64)
+#: The column of a `SplatArrays.cov` row at each (row, column) of the 3x3 covariance.
+COV_FULL = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]], np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,45 +104,14 @@ def posed(splats, t: float):
     sort, selection markers). Arrays without a skin are returned as they are."""
     if splats.skin is None:
         return splats
-    positions, turns = splats.skin.keys.poses(t)
-    mean_t, cov = splats.mean_t.copy(), splats.cov.copy()
-    _carry(splats.mean_t, splats.cov, splats.skin.nodes, splats.skin.weights, splats.skin.keys.canonical.numpy(),
-           positions, turns, mean_t, cov)
+    positions, turns = (x.astype(np.float32) for x in splats.skin.keys.poses(t))
+    n = len(splats.mean_t)
+    mean_t, cov, carried_cov = splats.mean_t.copy(), splats.cov.copy(), np.empty((n, 3, 3), np.float32)
+    carry_forward(np.arange(n), splats.mean_t, splats.cov[:, COV_FULL], splats.skin.nodes.astype(np.int64),
+                  splats.skin.weights, splats.skin.keys.canonical.numpy().astype(np.float32), positions, turns, True,
+                  mean_t, carried_cov, np.empty((n, 3, 3), np.float32))  # writes the xyz columns of mean_t only
+    cov[:, :6] = carried_cov[:, COV_TRIU[:, 0], COV_TRIU[:, 1]]  # opacity and speed stay
     motion = splats.motion.copy()
     motion[:, :3] = 0.0
     return replace(splats, mean_t=mean_t, motion=motion, accel=np.zeros_like(splats.accel), cov=cov, skin=None,
                    time=float(t))
-
-
-@numba.njit(cache=True, nogil=True)
-def _carry(mean_t, cov, nodes, weights, canonical, positions, turns, out_mean, out_cov):
-    """`splatreel.skinned.carry` of every Gaussian's canonical mean (`mean_t` xyz) and covariance (`cov` upper
-    triangle, `splats` layout) into `out_mean`, `out_cov` (same layouts): mean' = sum_k w_k (R_k (x - c_k) + p_k),
-    cov' = B cov B^T with B = sum_k w_k R_k."""
-    b = np.empty((3, 3))
-    s = np.empty((3, 3))
-    m = np.empty(3)
-    for i in range(mean_t.shape[0]):
-        b[:] = 0.0
-        m[:] = 0.0
-        for k in range(nodes.shape[1]):
-            w = weights[i, k]
-            j = int(nodes[i, k])
-            for r in range(3):
-                acc = positions[j, r]
-                for c in range(3):
-                    acc += turns[j, r, c] * (mean_t[i, c] - canonical[j, c])
-                    b[r, c] += w * turns[j, r, c]
-                m[r] += w * acc
-        s[0, 0], s[0, 1], s[0, 2] = cov[i, 0], cov[i, 1], cov[i, 2]
-        s[1, 0], s[1, 1], s[1, 2] = cov[i, 1], cov[i, 3], cov[i, 4]
-        s[2, 0], s[2, 1], s[2, 2] = cov[i, 2], cov[i, 4], cov[i, 5]
-        for r in range(3):
-            out_mean[i, r] = m[r]
-        for e in range(6):
-            r, c = COV_TRIU[e, 0], COV_TRIU[e, 1]
-            acc = 0.0
-            for p in range(3):
-                for q in range(3):
-                    acc += b[r, p] * s[p, q] * b[c, q]
-            out_cov[i, e] = acc

@@ -13,7 +13,6 @@ to show the carry's share of an image before and after.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import sys
@@ -22,7 +21,9 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # cuda_path, this script's neighbour
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # cuda_path, report: this script's neighbours
+
+from report import write_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -97,9 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"one training image at 256 px: {image_ms:.1f} ms (with the torch carry about "
           f"{result['image_ms_with_torch_carry']:.1f} ms)")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, result)
     return 0
 
 

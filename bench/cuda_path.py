@@ -25,7 +25,6 @@ Which compositor ran on the CUDA device is reported: gsplat's `rasterize_to_pixe
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
 import statistics
@@ -33,6 +32,8 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+
+from report import write_json  # bench/report.py, this script's neighbour
 
 import torch
 
@@ -171,9 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.profile:
         print(profile_step(model, views, background, cuda, args.profile))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, result)
     return 0
 
 

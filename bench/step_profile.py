@@ -18,12 +18,13 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
-import json
 import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from report import write_json  # bench/report.py, this script's neighbour
 
 #: Operators counted per step (host waits, launches, copies).
 COUNTED = ("cudaLaunchKernel", "cudaStreamSynchronize", "cudaMemcpyAsync", "aten::item", "aten::nonzero",
@@ -108,9 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         print(events.table(sort_by="self_cuda_time_total", row_limit=args.rows))
     print(events.table(sort_by="self_cpu_time_total", row_limit=args.rows))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, result)
     return 0
 
 

@@ -36,6 +36,13 @@ _ZERO = _F(0.0)
 
 _pjit = njit(parallel=True, cache=CACHE_ENABLED, nogil=True)
 _jit = njit(cache=CACHE_ENABLED, nogil=True)
+_ijit = njit(inline="always", cache=CACHE_ENABLED, nogil=True)
+
+
+@_ijit
+def _offset(means, g, canonical, j):
+    """x - c_j of Gaussian g and node j, as three floats."""
+    return means[g, 0] - canonical[j, 0], means[g, 1] - canonical[j, 1], means[g, 2] - canonical[j, 2]
 
 
 @_pjit
@@ -50,9 +57,7 @@ def carry_forward(rows, means, cov, nodes, weights, canonical, positions, turns,
         for k in range(nodes.shape[1]):
             j = nodes[r, k]
             w = weights[r, k]
-            o0 = means[g, 0] - canonical[j, 0]
-            o1 = means[g, 1] - canonical[j, 1]
-            o2 = means[g, 2] - canonical[j, 2]
+            o0, o1, o2 = _offset(means, g, canonical, j)
             for p in range(3):
                 m[p] += w * (turns[j, p, 0] * o0 + turns[j, p, 1] * o1 + turns[j, p, 2] * o2 + positions[j, p])
                 for q in range(3):
@@ -119,9 +124,7 @@ def carry_backward_nodes(rows, means, nodes, weights, canonical, grad_means, d_b
         for k in range(nodes.shape[1]):
             j = nodes[r, k]
             w = weights[r, k]
-            o0 = means[g, 0] - canonical[j, 0]
-            o1 = means[g, 1] - canonical[j, 1]
-            o2 = means[g, 2] - canonical[j, 2]
+            o0, o1, o2 = _offset(means, g, canonical, j)
             for p in range(3):
                 gp = w * grad_means[r, p]
                 d_positions[j, p] += gp

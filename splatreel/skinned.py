@@ -234,25 +234,7 @@ class SkinnedGaussians:
         `rows` alike) with the means and covariances carried by the nodes. `velocities` are the carried means'
         central difference over a thousandth of the clip (None without `with_velocities`)."""
         native = self.gaussians.slice(t, sh_degree_t, rows)
-        all_means = self.gaussians.means
-        if rows is not None and rows.dtype == torch.bool:
-            rows = rows.nonzero()[:, 0]
-        nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
-        weights, canonical = weights.to(all_means), self.node_canonical.to(all_means)
-        fused = all_means.device.type == "cpu" and all_means.dtype == torch.float32 and not (
-            canonical.requires_grad or weights.requires_grad)
-        if fused:  # float32 on the CPU: the kernel of `splatreel.carrying` (the same math, one pass)
-            from .carrying import fused_carry  # numba: imported on first use, not with the model
-
-            rows = torch.arange(len(all_means)) if rows is None else rows
-
-            def carried(cov3, poses):
-                return fused_carry(all_means, cov3, rows, nodes, weights, canonical, *(x.to(all_means) for x in poses))
-        else:
-            means = all_means if rows is None else take_rows(all_means, rows)
-
-            def carried(cov3, poses):
-                return carry(means, cov3, nodes, weights, canonical, *(x.to(means) for x in poses))
+        carried = self._carrier(rows)
         moved, cov = carried(native.covariances, self.poses(t))
         if not self.with_velocities:
             return replace(native, means=moved, covariances=cov, velocities=None)
@@ -261,14 +243,31 @@ class SkinnedGaussians:
             ahead, behind = carried(None, self.poses(t + h))[0], carried(None, self.poses(t - h))[0]
         return replace(native, means=moved, covariances=cov, velocities=(ahead - behind) / (2 * h))
 
+    def _carrier(self, rows: Tensor | None):
+        """A function (cov3 of the rows or None, node poses) -> `carry` of Gaussians `rows` (all when None; a bool
+        mask or indices): for float32 CPU tensors the fused kernel of `splatreel.carrying` (the same math in one
+        pass), else the torch composition."""
+        all_means = self.gaussians.means
+        if rows is not None and rows.dtype == torch.bool:
+            rows = rows.nonzero()[:, 0]
+        nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
+        weights, canonical = weights.to(all_means), self.node_canonical.to(all_means)
+        if all_means.device.type == "cpu" and all_means.dtype == torch.float32 and not (
+                canonical.requires_grad or weights.requires_grad):
+            from .carrying import fused_carry  # numba: imported on first use, not with the model
+
+            rows = torch.arange(len(all_means)) if rows is None else rows
+            return lambda cov3, poses: fused_carry(all_means, cov3, rows, nodes, weights, canonical,
+                                                   *(x.to(all_means) for x in poses))
+        means = all_means if rows is None else take_rows(all_means, rows)
+        return lambda cov3, poses: carry(means, cov3, nodes, weights, canonical, *(x.to(means) for x in poses))
+
     def centres(self, times) -> list[tuple[Tensor, Tensor]]:
         """``(means [N, 3], visible [N])`` of `slice(t)` for each t in `times` (see `Gaussians4D.centres`)."""
-        out = []
-        canonical = self.node_canonical.to(self.gaussians.means)
-        for (_, visible), t in zip(self.gaussians.centres(times), times):
-            positions, turns = (x.to(canonical) for x in self.poses(float(t)))
-            out.append((carry(self.gaussians.means, None, *self.skin, canonical, positions, turns)[0], visible))
-        return out
+        carried = self._carrier(None)
+        with torch.no_grad():
+            return [(carried(None, self.poses(float(t)))[0], visible)
+                    for (_, visible), t in zip(self.gaussians.centres(times), times)]
 
     def anchors(self) -> Tensor:
         """``[N, 3]`` where each Gaussian is when it shows most: carried to its temporal mean (clamped to the keys)."""

@@ -81,3 +81,7 @@ def test_a_skinned_slice_on_the_cpu_equals_the_torch_path():
     p, r = node_poses(times, positions, rotations, 0.3)  # the poses the slice carried by
     assert torch.allclose(fast.means.double(), carry(native.means.double()[rows], None, *(x[rows] for x in skinned(
         torch.float64).skin), canonical.double(), p.double(), r.double())[0], atol=1e-5)
+    # the centres (bounds, framing, mesh export) take the same kernel
+    (means, visible), = skinned(torch.float32).centres([0.3])
+    assert torch.allclose(means[rows].double(), slow.means, rtol=1e-4, atol=1e-5)
+    assert torch.equal(visible[rows], slow.visible)

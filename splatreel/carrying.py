@@ -48,14 +48,15 @@ def _offset(means, g, canonical, j):
 @_pjit
 def carry_forward(rows, means, cov, nodes, weights, canonical, positions, turns, with_cov, out_means, out_cov,
                   out_blend):
-    """Carry Gaussians `rows` of the full-size `means` (``[N, 3]``); `cov`, `nodes`, `weights` are already the rows'
-    (``[m, ...]``). Writes the ``[m, ...]`` outputs (`out_cov` only `with_cov`) and each row's blend A."""
+    """Carry Gaussians `rows` of the full-size `means` (``[N, 3]``, or wider: columns 0-2 are read); `cov`, `nodes`,
+    `weights` are already the rows' (``[m, ...]``). Writes the ``[m, ...]`` outputs (`out_cov` only `with_cov`) and,
+    unless `out_blend` is empty (a caller without a backward pass), each row's blend A."""
     for r in prange(rows.shape[0]):
         g = rows[r]
         a = np.zeros((3, 3), np.float32)
         m = np.zeros(3, np.float32)
         for k in range(nodes.shape[1]):
-            j = nodes[r, k]
+            j = int(nodes[r, k])  # indices, or the viewer's float32 attribute copy of them
             w = weights[r, k]
             o0, o1, o2 = _offset(means, g, canonical, j)
             for p in range(3):
@@ -64,8 +65,10 @@ def carry_forward(rows, means, cov, nodes, weights, canonical, positions, turns,
                     a[p, q] += w * turns[j, p, q]
         for p in range(3):
             out_means[r, p] = m[p]
-            for q in range(3):
-                out_blend[r, p, q] = a[p, q]
+        if out_blend.shape[0]:  # kept for the backward pass only
+            for p in range(3):
+                for q in range(3):
+                    out_blend[r, p, q] = a[p, q]
         if with_cov:
             ac = np.empty((3, 3), np.float32)  # A C
             for p in range(3):
@@ -122,7 +125,7 @@ def carry_backward_nodes(rows, means, nodes, weights, canonical, grad_means, d_b
     for r in range(rows.shape[0]):
         g = rows[r]
         for k in range(nodes.shape[1]):
-            j = nodes[r, k]
+            j = int(nodes[r, k])  # indices, or the viewer's float32 attribute copy of them
             w = weights[r, k]
             o0, o1, o2 = _offset(means, g, canonical, j)
             for p in range(3):

@@ -107,9 +107,9 @@ def posed(splats, t: float):
     positions, turns = (x.astype(np.float32) for x in splats.skin.keys.poses(t))
     n = len(splats.mean_t)
     mean_t, cov, carried_cov = splats.mean_t.copy(), splats.cov.copy(), np.empty((n, 3, 3), np.float32)
-    carry_forward(np.arange(n), splats.mean_t, splats.cov[:, COV_FULL], splats.skin.nodes.astype(np.int64),
-                  splats.skin.weights, splats.skin.keys.canonical.numpy().astype(np.float32), positions, turns, True,
-                  mean_t, carried_cov, np.empty((n, 3, 3), np.float32))  # writes the xyz columns of mean_t only
+    carry_forward(np.arange(n), splats.mean_t, splats.cov[:, COV_FULL], splats.skin.nodes, splats.skin.weights,
+                  splats.skin.keys.canonical.numpy(), positions, turns, True, mean_t, carried_cov,
+                  np.empty((0, 3, 3), np.float32))  # writes the xyz columns of mean_t only; no blend (no backward)
     cov[:, :6] = carried_cov[:, COV_TRIU[:, 0], COV_TRIU[:, 1]]  # opacity and speed stay
     motion = splats.motion.copy()
     motion[:, :3] = 0.0

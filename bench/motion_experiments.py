@@ -14,6 +14,12 @@ EXPERIMENT:
          exact motion (the same nodes, posed at every key by the box's rotation and travel), then learned as usual:
          what better tracking could buy at most.
 
+  floor-rigid  (oracle, `floor` sample only) every Gaussian near one of the floor scene's three moving objects at
+         its temporal mean (the ball, the box, the pendulum: by distance to the part's mesh there) is carried from its
+         temporal mean to time t by that object's exact rigid motion; the rest (floor, floaters) stay where they are.
+         Temporal means frozen, as for `rigid`: what one rigid motion per object, shared by every Gaussian on it, could
+         buy in the one-camera-per-time regime.
+
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
 
@@ -144,6 +150,72 @@ def use_exact_nodes() -> list[str]:
     return ["--set", "motion=nodes"]
 
 
+# --- floor-rigid: the floor scene's objects' exact rigid motions ----------------------------------------------------
+#: A Gaussian farther than this from every moving part (at its temporal mean) is floor or floater: static.
+_PART_REACH = 0.12
+
+
+def use_floor_rigid_oracle() -> list[str]:
+    from scipy.spatial import cKDTree
+
+    from splatreel.pointsets import rigid_fit
+    from splatreel.samples.floor import FloorScene
+
+    scene = FloorScene()
+    names = ("ball", "box", "pendulum")
+    grid = np.linspace(0.0, 1.0, 1001)
+    verts = {n: np.stack([scene.parts(float(s))[n].vertices for s in grid]) for n in names}
+    rot, trans, trees = {}, {}, {}
+    for n in names:  # pose x(s) = R(s) x_ref + T(s), x_ref the part at s = 0
+        ref = verts[n][0]
+        r, c0, c1, _ = rigid_fit(np.broadcast_to(ref, verts[n].shape), verts[n])
+        err = np.abs(np.einsum("gij,vj->gvi", r, ref - c0[0]) + c1[:, None] - verts[n]).max()
+        assert err < 1e-6, (n, err)  # each part is rigid
+        rot[n] = torch.from_numpy(r)
+        trans[n] = torch.from_numpy(c1 - np.einsum("gij,j->gi", r, c0[0]))
+        trees[n] = cKDTree(ref)
+    cache: dict = {"key": None}
+
+    def at(s: torch.Tensor) -> torch.Tensor:
+        return (s.clamp(0, 1) * (len(grid) - 1)).round().long()
+
+    def parts_of(model) -> torch.Tensor:
+        """[N] part index (0..2) of every Gaussian, -1 static; recomputed when the means change."""
+        key = (model.means.data_ptr(), model.means._version, len(model))
+        if cache["key"] != key:
+            x = model.means.detach().double()
+            g = at(_normalised_times(model, None))
+            best = torch.full((len(x),), _PART_REACH, dtype=torch.float64)
+            part = torch.full((len(x),), -1, dtype=torch.long)
+            for p, n in enumerate(names):
+                local = (rot[n][g].transpose(1, 2) @ (x - trans[n][g])[..., None])[..., 0]
+                d = torch.from_numpy(trees[n].query(local.numpy())[0])
+                nearer = d < best
+                best[nearer], part[nearer] = d[nearer], p
+            cache["key"], cache["part"] = key, part
+        return cache["part"]
+
+    def carry(model, t, rows, cov3):
+        part = parts_of(model) if rows is None else take_rows(parts_of(model), rows)
+        s_i = _normalised_times(model, rows)
+        t0, t1 = model.time_range
+        g_i, g = at(s_i), int(at(torch.tensor((t - t0) / (t1 - t0))))
+        mu = model.means if rows is None else take_rows(model.means, rows)
+        r_rel = torch.eye(3, dtype=torch.float64).repeat(len(part), 1, 1)
+        shift = torch.zeros(len(part), 3, dtype=torch.float64)
+        origin = torch.zeros(len(part), 3, dtype=torch.float64)
+        for p, n in enumerate(names):
+            m = part == p
+            r_rel[m] = rot[n][g] @ rot[n][g_i[m]].transpose(1, 2)
+            origin[m], shift[m] = trans[n][g_i[m]], trans[n][g].expand(int(m.sum()), 3)
+        r_rel = r_rel.to(mu.dtype)
+        means = (r_rel @ (mu - origin.to(mu.dtype))[..., None])[..., 0] + shift.to(mu.dtype)
+        return means, r_rel @ cov3 @ r_rel.transpose(1, 2)
+
+    _state["carry"] = carry
+    return ["--set", "lr_t_means=0"]
+
+
 class _NativeGaussians4D(Gaussians4D):
     """A sample's exact model: the bench's upper bound, which the experiment's motion must not carry."""
     _sliced = _native_sliced
@@ -164,7 +236,7 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
-EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes}
+EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle}
 
 
 def main() -> None:

@@ -300,6 +300,14 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     assert "--flow-motion-at and --inbetween-share ignored: no camera films two consecutive frames" in said
     assert "preset auto, 2 iterations" in said and "10 minutes (" in said and "--iters 2 given instead)" in said
     assert out.exists()
+    # with --motion nodes the flow step's share is when the nodes are tracked (by the model's own motion): used
+    out = tmp_path / "nodes.safetensors"
+    assert main(["train", str(small_floor), "--out", str(out), "--iters", "6", "--num-gaussians", "300",
+                 "--motion", "nodes", "--flow-motion-at", "0.5", "--node-key-every", "4", "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
+    model = load_checkpoint(out).model
+    assert model.kind == "skinned" and model.num_keys == 4  # 12 frames keyed at 0, 4, 8, 11
 
 
 def test_split_option_overrides_the_recipe(small_floor, tmp_path, capsys):

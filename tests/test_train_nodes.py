@@ -14,13 +14,16 @@ from splatreel import quaternion
 from splatreel.checkpoint import load_checkpoint
 from splatreel.cli.train import node_outcome_line
 from splatreel.covariance import condition_on_time
+from splatreel.model import static_gaussians4d
 from splatreel.samples import build_model
+from splatreel.samples.floor import concat_models
 from splatreel.samples.objects import Spinner
 from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians
 from splatreel.train.data import load_dataset
 from splatreel.skinned import carry, skin_weights
-from splatreel.train.nodes import TrackedNodes, middle_template, node_spacing, rigidity, to_canonical, track_nodes
+from splatreel.train.nodes import (TrackedNodes, middle_template, node_spacing, rigidity, to_canonical, track_nodes,
+                                  track_nodes_by_motion)
 from splatreel.train.pose_fit import fit_tracks, template_fits
 from splatreel.train.recipe import auto_recipe, read_traits
 from splatreel.train.trainer import Trainer
@@ -181,6 +184,34 @@ def test_nodes_are_never_drawn_twice_at_one_place():
     assert len(distinct) == 100 and len(set(distinct.tolist())) == 100  # distinct points: as many as asked
 
 
+def test_nodes_tracked_by_the_models_own_motion_follow_a_moving_box_and_a_still_floor():
+    """One camera per time has no videos to track: the model's own motion is the scene flow. On the spinner's exact
+    model (velocities from the box's known motion) beside a still plane of Gaussians, the nodes on the box turn and
+    travel with it to the ends of the clip, and the nodes on the plane stay put."""
+    box = Spinner()
+    times = np.linspace(0.0, 1.0, 16)
+    moving = build_model("spinner", frames=16)
+    grid = torch.stack(torch.meshgrid(torch.linspace(-2, 2, 30), torch.linspace(-2, 2, 30), indexing="ij"), -1)
+    plane = torch.cat([grid.reshape(-1, 2), torch.full((900, 1), -1.2)], 1)
+    identity = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(900, 4)
+    still = static_gaussians4d(plane, torch.full((900, 3), 0.05), identity, torch.full((900,), 0.9),
+                               torch.full((900, 3), 0.5), time_range=moving.time_range)
+    model = concat_models([moving, still])
+    tracked = track_nodes_by_motion(model, list(times), count=96)
+    assert tracked is not None and tracked.positions.shape[:2] == (16, 96) and tracked.middle == 8
+    rot = quaternion.to_rotmat(tracked.rotations.reshape(-1, 4)).reshape(16, 96, 3, 3)
+    on_plane = (tracked.canonical[:, 2] + 1.2).abs() < 1e-6
+    assert 10 < int(on_plane.sum()) < 86
+    torch.testing.assert_close(tracked.positions[:, on_plane], tracked.canonical[on_plane].expand(16, -1, -1))
+    on_box = ~on_plane
+    centre = torch.from_numpy(box.center(times[8]))
+    for k in (0, 7, 9, 15):
+        truth = torch.from_numpy(box.rotation(times[k]) @ box.rotation(times[8]).T)
+        assert float(angle_deg(truth.T @ rot[k, on_box]).median()) < 3.0
+        moved = (truth @ (tracked.canonical[on_box] - centre)[..., None])[..., 0] + torch.from_numpy(box.center(times[k]))
+        assert float((tracked.positions[k, on_box] - moved).norm(dim=1).median()) < 0.03
+
+
 @pytest.fixture(scope="module")
 def small_spinner(tmp_path_factory):
     """4 views x 4 frames at 64 px."""
@@ -210,6 +241,26 @@ def test_a_run_with_nodes_writes_a_skinned_checkpoint_and_resumes_exactly(small_
             assert float(ma.slice(float(t)).visible.float().mean()) > 0.9
     else:  # each frame its own: most are drawn near their own time only
         assert float(ma.slice(float(ds.frame_times[0])).visible.float().mean()) < 0.6
+
+
+def test_one_camera_per_time_with_nodes_tracks_them_by_the_models_motion_and_resumes_exactly(small_floor, tmp_path):
+    """No camera films consecutive frames: the nodes are tracked by the model's own motion, their poses keyed every
+    `node_key_every` frames (and at the last: 12 frames, every 4 -> 0, 4, 8, 11), and the run still resumes exactly."""
+    ds = load_dataset(small_floor)
+    cfg, _ = auto_recipe(read_traits(ds))
+    cfg = dataclasses.replace(cfg.scaled(10), minutes=None, num_gaussians=600, seed=2, motion="nodes", node_count=24,
+                              flow_motion_at=0.3, node_key_every=4)
+    a = Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False)
+    a.run()
+    assert a.nodes is not None and a.node_outcome["tracked_by"] == "motion"
+    assert node_outcome_line(a.node_outcome, "nodes").startswith("control nodes tracked by the model's own motion")
+    Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=5)
+    Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
+    ma, mb = load_checkpoint(tmp_path / "a.safetensors").model, load_checkpoint(tmp_path / "b.safetensors").model
+    assert ma.kind == "skinned" and ma.num_keys == 4
+    torch.testing.assert_close(ma.node_times, torch.tensor([ds.frame_times[k] for k in (0, 4, 8, 11)]))
+    for k, v in ma.tensors().items():
+        torch.testing.assert_close(v, mb.tensors()[k], rtol=0, atol=0)
 
 
 def test_motion_auto_stays_quadratic_where_one_set_of_gaussians_does_not_fit(small_spinner, tmp_path):

@@ -147,7 +147,8 @@ class TrainConfig:
     clip_duration: float | None = None
     #: Share of the run (0-1) at which every Gaussian's velocity is set once from the optical flow between each
     #: camera's consecutive frames, lifted to 3D by the model's depth (`train.motion`); 0: never. Needs cameras that
-    #: film consecutive frames (an image matrix).
+    #: film consecutive frames (an image matrix), save with motion 'nodes', which then tracks its nodes by the model's
+    #: own motion at this share (`train.nodes.track_nodes_by_motion`).
     flow_motion_at: float = 0.0
     #: Share of the images a step draws that are frames interpolated by optical flow half-way between a camera's
     #: consecutive frames (`train.flow`); 0: none. Needs cameras that film consecutive frames.
@@ -155,8 +156,8 @@ class TrainConfig:
     #: How the Gaussians' means move: 'linear' (native 4DGS), 'quadratic' (each Gaussian also learns an
     #: acceleration, `Gaussians4D.accelerations`, at `lr_accelerations` times the scene extent, per unit of the
     #: trainer's time axis squared), 'nodes' (quadratic until the flow step, `flow_motion_at`, then carried by
-    #: `node_count` control nodes tracked by the optical flow: `splatreel.skinned`, `train.nodes`; needs cameras
-    #: that film consecutive frames, and stays quadratic without) or 'auto' (quadratic until the flow step; then
+    #: `node_count` control nodes tracked by the optical flow: `splatreel.skinned`, `train.nodes`; with one
+    #: camera per time, by the model's own motion) or 'auto' (quadratic until the flow step; then
     #: nodes carrying one set of Gaussians for the whole clip where one rigid motion per frame carries the middle
     #: frame's Gaussians to every frame (`train.pose_fit.template_fits`), else quadratic with the flow's velocities).
     motion: str = "linear"
@@ -166,6 +167,10 @@ class TrainConfig:
     node_count: int = 512
     lr_node_positions: float = 1e-4
     lr_node_rotations: float = 5e-4
+    #: The nodes' learned poses are keyed every this many frames (and at the last), the times between on their
+    #: spline (`splatreel.skinned`): with one camera per time a pose keyed at every frame is fitted by one image and
+    #: moves to fake its depth; keyed every few frames, each pose is held by the several cameras around it.
+    node_key_every: int = 1
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
     #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes

@@ -4,7 +4,7 @@ What it sets depends on ``motion`` (`train.config.MOTIONS`):
 
 * linear, quadratic: every Gaussian a camera saw gets its velocity from the flow (`train.motion`);
 * nodes: control nodes, each tracked by its neighbours' flow, carry the Gaussians from then on (`train.nodes`), each
-  frame's own;
+  frame's own; with one camera per time (no flow) the nodes are tracked by the model's own motion;
 * auto: the nodes move by one rigid motion per key frame, fitted to the frames' images (`train.pose_fit`). Where that
   carries the middle frame's Gaussians to every frame, those alone draw the clip, static in time, carried by the
   nodes; elsewhere the velocities as for linear/quadratic.
@@ -24,7 +24,7 @@ from splatreel.model import Gaussians4D
 
 from .config import TrainConfig
 from .motion import FlowTracks, flow_tracks, flow_velocities, with_velocities
-from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, track_nodes
+from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, track_nodes, track_nodes_by_motion
 from .pose_fit import fit_tracks, template_fits
 
 
@@ -81,6 +81,14 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
     or with motion 'auto' when one set does not fit."""
     auto = cfg.motion == "auto"
     tracked = track_nodes(model, ds, background, cfg.node_count, cfg.seed, tracks=tracks, rigid=auto)
+    if tracked is None and not auto:  # no videos: the model's own motion tracks the nodes
+        tracked = track_nodes_by_motion(model, ds.frame_times, cfg.node_count, cfg.seed)
+        if tracked is None:
+            return FlowStep({}, 0)
+        sigma = node_spacing(tracked.canonical)
+        canonical = to_canonical(model, torch.tensor(ds.frame_times, dtype=torch.float64), tracked, sigma)
+        return FlowStep(canonical, len(tracked.canonical), tracked, sigma,
+                        outcome={"template": False, "template_ratio": None, "tracked_by": "motion"})
     if tracked is None:
         return FlowStep({}, 0)
     sigma = node_spacing(tracked.canonical)

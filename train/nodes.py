@@ -22,7 +22,10 @@ the middle frame's Gaussians to every frame, those alone serve the whole clip (`
 this, and otherwise stays native; motion 'nodes' does it where it fits (`TrainConfig.node_template`) and otherwise
 keeps every frame's Gaussians on the flow's nodes.
 
-A dataset where no camera films consecutive frames (one camera per time) has no tracks: the motion stays native.
+A dataset where no camera films consecutive frames (one camera per time) has no flow: motion 'nodes' then tracks
+the nodes by the model's own motion (`track_nodes_by_motion`; the native motion, fitted by every view of the clip, is
+the scene flow), and each frame keeps its own Gaussians. The learned poses are then keyed every few frames
+(`TrainConfig.node_key_every`): a pose per frame is fitted by one image and moves to fake its depth.
 """
 
 from __future__ import annotations
@@ -50,6 +53,11 @@ RIGID_NEIGHBOURS = 8
 OPAQUE = 0.1
 #: The one set of Gaussians for the clip keeps those within this many node spacings of a node (`middle_template`).
 TEMPLATE_REACH = 3.0
+#: Tracking by the model's own motion (`track_nodes_by_motion`): a Gaussian travels when it moves by more than this
+#: share of the scene's rms radius within `MOTION_KEYS` keys of the middle; this share of the nodes go to those.
+MOVING = 0.01
+MOTION_KEYS = 2
+MOVING_NODES = 0.75
 #: Skin weights are recomputed every this many steps (the canonical means move) and after densification.
 SKIN_EVERY = 100
 
@@ -114,6 +122,84 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
             pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
             rot[k + step] = turn @ rot[k]
     return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle)
+
+
+def _node_sites(points: np.ndarray, travel: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of up to `count` node sites among `points` ``[P, 3]``: `MOVING_NODES` of them by farthest-point
+    sampling among the points that travel (`travel` ``[P]``, how far each moves within a few keys of the middle,
+    above `MOVING` of the points' rms radius), the rest among the still ones. Sampled as one set, a floor or a
+    backdrop many times the moving objects' size would take nearly every node, and each object a handful."""
+    radius = float(np.sqrt(((points - points.mean(0)) ** 2).sum(1).mean()))
+    moving = travel > MOVING * radius
+    groups = [np.nonzero(moving)[0], np.nonzero(~moving)[0]]
+    if not len(groups[0]) or not len(groups[1]):
+        return farthest_point_subset(points, count, rng)
+    first = round(MOVING_NODES * count)
+    picks = [g[farthest_point_subset(points[g], n, rng)] for g, n in zip(groups, (first, count - first)) if n > 0]
+    return np.concatenate(picks)
+
+
+def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, seed: int = 0) -> TrackedNodes | None:
+    """`count` nodes among the opaque Gaussians of `model` alive at the middle key of `times`, tracked to every key
+    by the model's own motion: between two neighbouring keys each node moves by the weighted rigid fit of its
+    `FIT_NEIGHBOURS` nearest Gaussians alive at both (weight: opacity times the lesser temporal marginal), from
+    their sliced means at the one key to those at the other. What a dataset with one camera per time allows, where
+    no camera films consecutive frames: the native motion, fitted by every view of the clip, is the scene flow."""
+    g = model.detach().to("cpu", torch.float64)
+    frames = len(times)
+    if frames < 2 or len(g) < 4:
+        return None
+    cov3, velocity, var_t = condition_on_time(g.covariance_4d())
+    accel = g.accelerations_or_zeros()
+    opacity = torch.sigmoid(g.opacity_logits)
+
+    def at(k: int) -> tuple[np.ndarray, np.ndarray]:
+        dt = (times[k] - g.t_means)[:, None]
+        marginal = torch.exp(-0.5 * dt[:, 0] ** 2 / var_t.clamp_min(1e-30))
+        return (g.means + velocity * dt + 0.5 * accel * dt * dt).numpy(), marginal.numpy()
+
+    middle = frames // 2
+    where, alive = at(middle)
+    weight = opacity.numpy() * alive
+    floor = min(OPAQUE, 0.5 * float(weight.max()))  # early in a run none may be that opaque yet
+    candidates = np.nonzero(weight > floor)[0]
+    if len(candidates) < 4:
+        return None
+    cache = {middle: (where, alive)}
+    for j in (max(middle - MOTION_KEYS, 0), min(middle + MOTION_KEYS, frames - 1)):
+        cache[j] = at(j)
+    travel = np.maximum(*(np.linalg.norm(cache[j][0][candidates] - where[candidates], axis=1)
+                          for j in (max(middle - MOTION_KEYS, 0), min(middle + MOTION_KEYS, frames - 1))))
+    sites = where[candidates][_node_sites(where[candidates], travel, count, np.random.default_rng(seed))]
+    m = len(sites)
+    pos = torch.zeros(frames, m, 3, dtype=torch.float64)
+    rot = torch.zeros(frames, m, 3, 3, dtype=torch.float64)
+    pos[middle], rot[middle] = torch.from_numpy(sites), torch.eye(3, dtype=torch.float64)
+    for step, keys in ((1, range(middle, frames - 1)), (-1, range(middle, 0, -1))):
+        for k in keys:
+            for j in (k, k + step):
+                if j not in cache:
+                    cache[j] = at(j)
+            (p0, m0), (p1, m1) = cache[k], cache[k + step]
+            w = opacity.numpy() * np.minimum(m0, m1)
+            rows = np.nonzero(w > floor)[0]
+            if len(rows) < 3:  # nothing alive across the two keys: the nodes hold their pose
+                pos[k + step], rot[k + step] = pos[k], rot[k]
+                continue
+            _, idx = nearest_nodes(torch.from_numpy(p0[rows]), pos[k], FIT_NEIGHBOURS)
+            idx = idx.numpy()
+            wk = w[rows][idx]
+            turn, cx, cy, _ = (torch.from_numpy(x) for x in rigid_fit(p0[rows][idx], p1[rows][idx],
+                                                                      wk / wk.sum(1, keepdims=True)))
+            pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
+            rot[k + step] = turn @ rot[k]
+    return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle)
+
+
+def node_keys(frames: int, every: int) -> list[int]:
+    """Indices of the frames the nodes' learned poses are keyed at: every `every`-th, and the last."""
+    keys = list(range(0, frames, max(1, every)))
+    return keys if keys[-1] == frames - 1 else keys + [frames - 1]
 
 
 def to_canonical(model: Gaussians4D, key_times: torch.Tensor, nodes: TrackedNodes,

@@ -33,7 +33,7 @@ from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes
 from .flow import inbetween_views
 from .flow_step import flow_step
-from .nodes import Nodes
+from .nodes import Nodes, node_keys
 from .initialize import (carved_init, default_init_radius, frustum_init, initial_parameters, knn, look_at_centre,
                          mesh_points, point_cloud_init, random_ball, start_static)
 from .losses import image_loss, mse, psnr_of_mse, scale_ratio_loss, smoothness_loss
@@ -262,7 +262,9 @@ class Trainer:
         if self.nodes is None:
             return model
         n = self.nodes
-        return SkinnedGaussians(model, n.canonical.cpu(), torch.tensor(self.source.frame_times, dtype=torch.float32),
+        frames = self.source.frame_times
+        keys = torch.tensor([frames[k] for k in node_keys(len(frames), self.cfg.node_key_every)], dtype=torch.float32)
+        return SkinnedGaussians(model, n.canonical.cpu(), keys,
                                 n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
 
     def _views(self, factor: int) -> list[DatasetImage]:
@@ -410,8 +412,10 @@ class Trainer:
             self.strategy_state = strategy.initialize_state(len(self.params["means"]), self.device)
             self._nbr = None
         if step.nodes is not None:
-            self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64), step.nodes.canonical,
-                               step.nodes.positions, step.nodes.rotations, step.sigma, *self._node_lrs(), self.device)
+            keys = node_keys(len(self.ds.frame_times), self.cfg.node_key_every)
+            self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64)[keys], step.nodes.canonical,
+                               step.nodes.positions[keys], step.nodes.rotations[keys], step.sigma, *self._node_lrs(),
+                               self.device)
         return step.count
 
     def elapsed(self) -> float:

@@ -79,7 +79,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="at this share of the run, set every Gaussian's velocity once from the optical flow between "
                         "each camera's consecutive frames, lifted to 3D by the model's depth (default: the recipe's, "
                         f"{FLOW_MOTION_AT:g} for an image matrix; 0 = never; needs cameras that film consecutive "
-                        "frames, else it is ignored with a note)")
+                        "frames, else it is ignored with a note, save with --motion nodes, whose nodes are then "
+                        "tracked by the model's own motion at this share)")
     p.add_argument("--inbetween-share", type=fraction, metavar="F",
                    help="share of the images a step draws that are frames optical flow interpolates half-way "
                         "between a camera's consecutive frames (default: the recipe's, "
@@ -89,7 +90,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="how the Gaussians move: linear (native 4DGS), quadratic (each also learns an acceleration, "
                         "so it can follow a curved path; exported where the format holds it), nodes (quadratic "
                         "until the flow step, then carried by control nodes tracked by the optical flow, so one "
-                        "Gaussian follows its part through every time; needs cameras that film consecutive frames; "
+                        "Gaussian follows its part through every time; with one camera per time, no flow: the nodes "
+                        "are tracked by the model's own motion; "
                         "a skinned checkpoint) or auto (quadratic until the flow step; then, where one rigid motion "
                         "per frame, fitted to the images, carries the middle frame's Gaussians to every frame, nodes "
                         "carrying that one set for the whole clip, else quadratic on) (default: the recipe's, auto "
@@ -100,6 +102,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "nodes, one set for the whole clip (on), never (off), or when the nodes carry them to every "
                         "frame and they draw every frame nearly as well as the middle one (auto) (default: auto; a "
                         "resumed run keeps its own)")
+    p.add_argument("--node-key-every", type=count, metavar="K",
+                   help="with nodes: key their learned poses every K frames (and at the last), the times between on "
+                        "their spline; with one camera per time a pose keyed at every frame is fitted by one image "
+                        "and can fake its depth (default 1; a resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -150,7 +156,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "static_share": args.static_share, "clip_duration": None if resumed else args.clip_duration,
             "flow_motion_at": args.flow_motion_at,
             "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion,
-            "node_template": None if resumed else args.node_template}
+            "node_template": None if resumed else args.node_template,
+            "node_key_every": None if resumed else args.node_key_every}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:
@@ -188,6 +195,9 @@ def node_outcome_line(outcome: dict | None, motion: str) -> str | None:
     ratio = outcome["template_ratio"]
     fit = "" if ratio is None or ratio == float("inf") else \
         f" (its worst frame fitted: {ratio:.2f} times its error at the middle frame)"
+    if outcome.get("tracked_by") == "motion":
+        return ("control nodes tracked by the model's own motion carry each frame's Gaussians (no camera films "
+                "consecutive frames: no optical flow)")
     if outcome["template"]:
         return ("one set of Gaussians for the whole clip: one rigid motion per frame carries the middle frame's to "
                 f"every frame{fit}; --node-template off to change")
@@ -238,7 +248,8 @@ def run(args: argparse.Namespace) -> int:
         # a count of iterations replaces the time budget
         instead = f"--iters {args.iters}" if d.option == "--minutes" and args.iters and not args.minutes else None
         print(f"  - {d.line(given_value(args, d.option), instead)}")
-    unused = [o for o, v in (("--flow-motion-at", cfg.flow_motion_at), ("--inbetween-share", cfg.inbetween_share)) if v]
+    unused = [o for o, v in (("--flow-motion-at", cfg.flow_motion_at and cfg.motion != "nodes"),
+                             ("--inbetween-share", cfg.inbetween_share)) if v]
     if unused and not camera_videos(ds):  # the recipe sets them only for videos: the user asked
         print(f"splatreel train: {' and '.join(unused)} ignored: no camera films two consecutive frames, so there is "
               "no flow to follow")

@@ -81,25 +81,24 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
     or with motion 'auto' when one set does not fit."""
     auto = cfg.motion == "auto"
     tracked = track_nodes(model, ds, background, cfg.node_count, cfg.seed, tracks=tracks, rigid=auto)
-    if tracked is None and not auto:  # no videos: the model's own motion tracks the nodes
+    # no videos (one camera per time): the model's own motion tracks the nodes, and each frame keeps its Gaussians
+    by_motion = tracked is None and not auto
+    if by_motion:
         tracked = track_nodes_by_motion(model, ds.frame_times, cfg.node_count, cfg.seed)
-        if tracked is None:
-            return FlowStep({}, 0)
-        sigma = node_spacing(tracked.canonical)
-        canonical = to_canonical(model, torch.tensor(ds.frame_times, dtype=torch.float64), tracked, sigma)
-        return FlowStep(canonical, len(tracked.canonical), tracked, sigma,
-                        outcome={"template": False, "template_ratio": None, "tracked_by": "motion"})
     if tracked is None:
         return FlowStep({}, 0)
     sigma = node_spacing(tracked.canonical)
     fit = None
-    if cfg.node_fit_steps and cfg.node_template != "off":
+    if cfg.node_fit_steps and cfg.node_template != "off" and not by_motion:
         fit = fit_tracks(model, ds, background, tracked, sigma, cfg.node_fit_steps, cfg.seed,
                          give_up=cfg.node_template == "auto")
-    one = cfg.node_template == "on" or (cfg.node_template == "auto" and fit is not None and template_fits(fit))
+    one = not by_motion and (cfg.node_template == "on" or
+                             (cfg.node_template == "auto" and fit is not None and template_fits(fit)))
     ratio = None if fit is None else fit.template_ratio()  # inf when nothing was fitted: none (the metadata is JSON)
     outcome = {"template": one, "template_ratio": round(ratio, 3) if ratio is not None and math.isfinite(ratio)
                else None}
+    if by_motion:
+        outcome["tracked_by"] = "motion"
     if one and fit is not None:
         tracked = fit.nodes
     if auto and not one:

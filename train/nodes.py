@@ -36,7 +36,8 @@ import numpy as np
 import torch
 
 from splatreel import quaternion
-from splatreel.covariance import condition_on_time, covariance_4d_from_motion, decompose_covariance_4d
+from splatreel.covariance import (condition_on_time, covariance_4d_from_motion, decompose_covariance_4d,
+                                  temporal_marginal)
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
@@ -149,27 +150,25 @@ def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, se
     frames = len(times)
     if frames < 2 or len(g) < 4:
         return None
-    cov3, velocity, var_t = condition_on_time(g.covariance_4d())
-    accel = g.accelerations_or_zeros()
-    opacity = torch.sigmoid(g.opacity_logits)
+    _, _, var_t = condition_on_time(g.covariance_4d())
+    opacity = torch.sigmoid(g.opacity_logits).numpy()
+    cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def at(k: int) -> tuple[np.ndarray, np.ndarray]:
-        dt = (times[k] - g.t_means)[:, None]
-        marginal = torch.exp(-0.5 * dt[:, 0] ** 2 / var_t.clamp_min(1e-30))
-        return (g.means + velocity * dt + 0.5 * accel * dt * dt).numpy(), marginal.numpy()
+        """The sliced means ``[N, 3]`` at key k and each Gaussian's weight there: opacity times temporal marginal."""
+        if k not in cache:
+            (means, _), = g.centres([times[k]])
+            cache[k] = means.numpy(), opacity * temporal_marginal(times[k], g.t_means, var_t).numpy()
+        return cache[k]
 
     middle = frames // 2
-    where, alive = at(middle)
-    weight = opacity.numpy() * alive
+    where, weight = at(middle)
     floor = min(OPAQUE, 0.5 * float(weight.max()))  # early in a run none may be that opaque yet
     candidates = np.nonzero(weight > floor)[0]
     if len(candidates) < 4:
         return None
-    cache = {middle: (where, alive)}
-    for j in (max(middle - MOTION_KEYS, 0), min(middle + MOTION_KEYS, frames - 1)):
-        cache[j] = at(j)
-    travel = np.maximum(*(np.linalg.norm(cache[j][0][candidates] - where[candidates], axis=1)
-                          for j in (max(middle - MOTION_KEYS, 0), min(middle + MOTION_KEYS, frames - 1))))
+    probes = (max(middle - MOTION_KEYS, 0), min(middle + MOTION_KEYS, frames - 1))
+    travel = np.max([np.linalg.norm(at(j)[0][candidates] - where[candidates], axis=1) for j in probes], axis=0)
     sites = where[candidates][_node_sites(where[candidates], travel, count, np.random.default_rng(seed))]
     m = len(sites)
     pos = torch.zeros(frames, m, 3, dtype=torch.float64)
@@ -177,11 +176,10 @@ def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, se
     pos[middle], rot[middle] = torch.from_numpy(sites), torch.eye(3, dtype=torch.float64)
     for step, keys in ((1, range(middle, frames - 1)), (-1, range(middle, 0, -1))):
         for k in keys:
-            for j in (k, k + step):
-                if j not in cache:
-                    cache[j] = at(j)
-            (p0, m0), (p1, m1) = cache[k], cache[k + step]
-            w = opacity.numpy() * np.minimum(m0, m1)
+            (p0, w0), (p1, w1) = at(k), at(k + step)
+            if k != middle:  # the walk moves on (the middle starts the other way): a few keys held at a time
+                del cache[k]
+            w = np.minimum(w0, w1)
             rows = np.nonzero(w > floor)[0]
             if len(rows) < 3:  # nothing alive across the two keys: the nodes hold their pose
                 pos[k + step], rot[k + step] = pos[k], rot[k]

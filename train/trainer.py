@@ -244,6 +244,10 @@ class Trainer:
         return Gaussians4D(**params, sh_degree=cfg.sh_degree, sh_degree_t=cfg.sh_degree_t,
                            time_range=self.time_range, rotation_convention=cfg.rotation_convention)
 
+    def _node_keys(self) -> list[int]:
+        """The frames the nodes' learned poses are keyed at (`train.nodes.node_keys`)."""
+        return node_keys(len(self.ds.frame_times), self.cfg.node_key_every)
+
     def _node_lrs(self) -> tuple[float, float]:
         return self.cfg.lr_node_positions * self.extent, self.cfg.lr_node_rotations
 
@@ -262,8 +266,7 @@ class Trainer:
         if self.nodes is None:
             return model
         n = self.nodes
-        frames = self.source.frame_times
-        keys = torch.tensor([frames[k] for k in node_keys(len(frames), self.cfg.node_key_every)], dtype=torch.float32)
+        keys = torch.tensor([self.source.frame_times[k] for k in self._node_keys()], dtype=torch.float32)
         return SkinnedGaussians(model, n.canonical.cpu(), keys,
                                 n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
 
@@ -412,7 +415,7 @@ class Trainer:
             self.strategy_state = strategy.initialize_state(len(self.params["means"]), self.device)
             self._nbr = None
         if step.nodes is not None:
-            keys = node_keys(len(self.ds.frame_times), self.cfg.node_key_every)
+            keys = self._node_keys()
             self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64)[keys], step.nodes.canonical,
                                step.nodes.positions[keys], step.nodes.rotations[keys], step.sigma, *self._node_lrs(),
                                self.device)

@@ -20,6 +20,13 @@ EXPERIMENT:
          Temporal means frozen, as for `rigid`: what one rigid motion per object, shared by every Gaussian on it, could
          buy in the one-camera-per-time regime.
 
+  floor-still  (oracle, `floor` sample only) the Gaussians away from the three objects (at their temporal means, as
+         for `floor-rigid`) do not move, those near them keep the recipe's own motion: what a still floor alone buys.
+
+  floor-nodes-exact  (oracle, `floor` sample only) the trainer's `--motion nodes` on the floor, its nodes' tracks
+         (by the model's own motion) replaced by the exact motion of the part each node sits on at the middle frame
+         (none within reach: still), then learned as usual: what better tracking could buy at most there.
+
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
 
@@ -45,12 +52,12 @@ from splatreel.model import Gaussians4D, take_rows
 from splatreel.train import strategy as _strategy
 
 _native_sliced = Gaussians4D._sliced
-_state: dict = {"carry": None}  # carry(model, t, rows, cov3) -> (means, cov3), once the motion is on
+_state: dict = {"carry": None}  # carry(model, t, rows, means, cov3) -> (means, cov3), once the motion is on
 
 
 def _carried_sliced(self, t, sh_degree_t, rows, means, cov3, velocity, marginal):
     if _state["carry"] is not None:
-        means, cov3 = _state["carry"](self, t, rows, cov3)
+        means, cov3 = _state["carry"](self, t, rows, means, cov3)
     return _native_sliced(self, t, sh_degree_t, rows, means, cov3, velocity, marginal)
 
 
@@ -105,7 +112,7 @@ def use_rigid_oracle() -> list[str]:
     assert torch.allclose(turn(torch.tensor([2 * math.pi * box.spin_turns * 0.5], dtype=torch.float64))[0], check,
                           atol=1e-9)
 
-    def carry(model, t, rows, cov3):
+    def carry(model, t, rows, native, cov3):
         s_i = _normalised_times(model, rows)
         t0, t1 = model.time_range
         s = torch.full_like(s_i, (t - t0) / (t1 - t0)).clamp(0, 1)
@@ -155,7 +162,10 @@ def use_exact_nodes() -> list[str]:
 _PART_REACH = 0.12
 
 
-def use_floor_rigid_oracle() -> list[str]:
+def _floor_poses() -> tuple[tuple[str, ...], np.ndarray, dict, dict, dict]:
+    """The floor scene's moving parts, their names, the pose times ``[G]`` (shares of the clip), and per part the
+    rotations ``[G, 3, 3]`` and translations ``[G, 3]`` of the pose ``x(s) = R(s) x_ref + T(s)`` (x_ref: the part at
+    s = 0) and a k-d tree of x_ref's vertices."""
     from scipy.spatial import cKDTree
 
     from splatreel.pointsets import rigid_fit
@@ -166,7 +176,7 @@ def use_floor_rigid_oracle() -> list[str]:
     grid = np.linspace(0.0, 1.0, 1001)
     verts = {n: np.stack([scene.parts(float(s))[n].vertices for s in grid]) for n in names}
     rot, trans, trees = {}, {}, {}
-    for n in names:  # pose x(s) = R(s) x_ref + T(s), x_ref the part at s = 0
+    for n in names:
         ref = verts[n][0]
         r, c0, c1, _ = rigid_fit(np.broadcast_to(ref, verts[n].shape), verts[n])
         err = np.abs(np.einsum("gij,vj->gvi", r, ref - c0[0]) + c1[:, None] - verts[n]).max()
@@ -174,6 +184,24 @@ def use_floor_rigid_oracle() -> list[str]:
         rot[n] = torch.from_numpy(r)
         trans[n] = torch.from_numpy(c1 - np.einsum("gij,j->gi", r, c0[0]))
         trees[n] = cKDTree(ref)
+    return names, grid, rot, trans, trees
+
+
+def _floor_part(x: torch.Tensor, g: torch.Tensor, names, rot, trans, trees) -> torch.Tensor:
+    """``[N]`` the part (index into `names`) nearest each point ``x [N, 3]`` at pose index ``g [N]``, -1 (static)
+    when none is within `_PART_REACH`."""
+    best = torch.full((len(x),), _PART_REACH, dtype=torch.float64)
+    part = torch.full((len(x),), -1, dtype=torch.long)
+    for p, n in enumerate(names):
+        local = (rot[n][g].transpose(1, 2) @ (x - trans[n][g])[..., None])[..., 0]
+        d = torch.from_numpy(trees[n].query(local.numpy())[0])
+        nearer = d < best
+        best[nearer], part[nearer] = d[nearer], p
+    return part
+
+
+def use_floor_rigid_oracle() -> list[str]:
+    names, grid, rot, trans, trees = _floor_poses()
     cache: dict = {"key": None}
 
     def at(s: torch.Tensor) -> torch.Tensor:
@@ -184,18 +212,11 @@ def use_floor_rigid_oracle() -> list[str]:
         key = (model.means.data_ptr(), model.means._version, len(model))
         if cache["key"] != key:
             x = model.means.detach().double()
-            g = at(_normalised_times(model, None))
-            best = torch.full((len(x),), _PART_REACH, dtype=torch.float64)
-            part = torch.full((len(x),), -1, dtype=torch.long)
-            for p, n in enumerate(names):
-                local = (rot[n][g].transpose(1, 2) @ (x - trans[n][g])[..., None])[..., 0]
-                d = torch.from_numpy(trees[n].query(local.numpy())[0])
-                nearer = d < best
-                best[nearer], part[nearer] = d[nearer], p
+            part = _floor_part(x, at(_normalised_times(model, None)), names, rot, trans, trees)
             cache["key"], cache["part"] = key, part
         return cache["part"]
 
-    def carry(model, t, rows, cov3):
+    def carry(model, t, rows, native, cov3):
         part = parts_of(model) if rows is None else take_rows(parts_of(model), rows)
         s_i = _normalised_times(model, rows)
         t0, t1 = model.time_range
@@ -214,6 +235,68 @@ def use_floor_rigid_oracle() -> list[str]:
 
     _state["carry"] = carry
     return ["--set", "lr_t_means=0"]
+
+
+def use_floor_still_oracle() -> list[str]:
+    """`floor-still`: the Gaussians away from the floor scene's moving objects (at their temporal means) do not move;
+    those near them keep the recipe's own (quadratic) motion."""
+    names, grid, rot, trans, trees = _floor_poses()
+    cache: dict = {"key": None}
+
+    def still_of(model) -> torch.Tensor:
+        key = (model.means.data_ptr(), model.means._version, len(model))
+        if cache["key"] != key:
+            s = _normalised_times(model, None)
+            g = (s.clamp(0, 1) * (len(grid) - 1)).round().long()
+            cache["key"] = key
+            cache["still"] = _floor_part(model.means.detach().double(), g, names, rot, trans, trees) < 0
+        return cache["still"]
+
+    def carry(model, t, rows, native, cov3):
+        still = still_of(model) if rows is None else take_rows(still_of(model), rows)
+        mu = model.means if rows is None else take_rows(model.means, rows)
+        return torch.where(still[:, None], mu, native), cov3
+
+    _state["carry"] = carry
+    return []
+
+
+def use_floor_exact_nodes() -> list[str]:
+    """`--motion nodes` on the floor, its node tracks (by the model's own motion) replaced by the scene's exact
+    motion: the same nodes, each posed at every frame by the rigid motion of the part it sits on at the middle frame
+    (none within reach: still, and pinned), then learned as usual. What better tracking could buy at most in this regime."""
+    import splatreel.train.flow_step as flow_step
+    from splatreel.train.nodes import TrackedNodes
+
+    names, grid, rot, trans, trees = _floor_poses()
+    track = flow_step.track_nodes_by_motion
+
+    def exact(model, times, count, seed=0):
+        tracked = track(model, times, count, seed)
+        if tracked is None:
+            return None
+        times = np.asarray(times, dtype=np.float64)
+        share = (times - times[0]) / (times[-1] - times[0])
+        g = np.rint(share * (len(grid) - 1)).astype(np.int64)
+        mid = int(g[tracked.middle])
+        x = tracked.canonical
+        part = _floor_part(x, torch.full((len(x),), mid), names, rot, trans, trees)
+        positions = torch.empty(len(times), len(x), 3, dtype=torch.float64)
+        turns = torch.eye(3, dtype=torch.float64).repeat(len(times), len(x), 1, 1)
+        for k, gk in enumerate(g.tolist()):
+            positions[k] = x
+            for p, n in enumerate(names):
+                m = part == p
+                r = rot[n][gk] @ rot[n][mid].T
+                positions[k, m] = (r @ (x[m] - trans[n][mid])[..., None])[..., 0] + trans[n][gk]
+                turns[k, m] = r
+        print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(names))]} of {len(x)} nodes on "
+              f"{', '.join(names)}", file=sys.stderr)
+        return TrackedNodes(positions, quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(len(times), -1, 4),
+                            tracked.middle, part < 0)
+
+    flow_step.track_nodes_by_motion = exact
+    return ["--set", "motion=nodes", "--set", "flow_motion_at=0.3", "--set", "node_template=off"]
 
 
 class _NativeGaussians4D(Gaussians4D):
@@ -236,7 +319,8 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
-EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle}
+EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
+               "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle}
 
 
 def main() -> None:

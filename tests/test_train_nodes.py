@@ -22,8 +22,8 @@ from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians
 from splatreel.train.data import load_dataset
 from splatreel.skinned import carry, skin_weights
-from splatreel.train.nodes import (TrackedNodes, middle_template, node_spacing, rigidity, to_canonical, track_nodes,
-                                  track_nodes_by_motion)
+from splatreel.train.nodes import (MOVING, TrackedNodes, _node_sites, coherent_travel, middle_template, node_spacing, rigidity,
+                                  to_canonical, track_nodes, track_nodes_by_motion)
 from splatreel.train.pose_fit import fit_tracks, template_fits
 from splatreel.train.recipe import auto_recipe, read_traits
 from splatreel.train.trainer import Trainer
@@ -212,6 +212,29 @@ def test_nodes_tracked_by_the_models_own_motion_follow_a_moving_box_and_a_still_
         assert float((tracked.positions[k, on_box] - moved).norm(dim=1).median()) < 0.03
 
 
+def test_node_sites_go_where_neighbourhoods_move_together_not_where_gaussians_jitter_alone():
+    """A floor fitted by one camera per time jitters each Gaussian its own way, often further than an object moves:
+    the median over each Gaussian's neighbours cancels that and keeps the object's shared motion, so the nodes meant
+    for what moves land on the object, not across the floor."""
+    rng = np.random.default_rng(0)
+    box = rng.uniform(-0.2, 0.2, (400, 3))
+    floor = np.concatenate([rng.uniform(-4, 4, (3000, 2)), np.full((3000, 1), -1.0)], 1)
+    points = np.concatenate([box, floor])
+    shift = np.zeros_like(points)
+    shift[:400] = (0.05, 0.0, 0.0)  # the box moves as one
+    jitter = rng.normal(0.0, 0.03, floor.shape)  # each floor Gaussian its own way, |jitter| ~ the box's travel
+    displacements = [shift + np.concatenate([np.zeros_like(box), jitter]),
+                     -shift + np.concatenate([np.zeros_like(box), -jitter])]
+    travel = coherent_travel(points, displacements)
+    np.testing.assert_allclose(np.median(travel[:400]), 0.05, atol=0.005)
+    threshold = MOVING * np.sqrt(((points - points.mean(0)) ** 2).sum(1).mean())  # what _node_sites calls moving
+    assert (np.linalg.norm(jitter, axis=1) > threshold).mean() > 0.6  # one by one, most of the floor "moves"
+    assert (travel[400:] > threshold).mean() < 0.05 and (travel[:400] > threshold).all()
+    sites, still = _node_sites(points, travel, 96, np.random.default_rng(0))
+    assert (sites < 400).sum() >= 48  # most of the three quarters meant for what moves land on the box (before: 1)
+    assert not still[sites < 400].any() and still[sites >= 400].sum() == 24  # a quarter still, all on the floor
+
+
 @pytest.fixture(scope="module")
 def small_spinner(tmp_path_factory):
     """4 views x 4 frames at 64 px."""
@@ -245,7 +268,8 @@ def test_a_run_with_nodes_writes_a_skinned_checkpoint_and_resumes_exactly(small_
 
 def test_one_camera_per_time_with_nodes_tracks_them_by_the_models_motion_and_resumes_exactly(small_floor, tmp_path):
     """No camera films consecutive frames: the nodes are tracked by the model's own motion, their poses keyed every
-    `node_key_every` frames (and at the last: 12 frames, every 4 -> 0, 4, 8, 11), and the run still resumes exactly."""
+    `node_key_every` frames (and at the last: 12 frames, every 4 -> 0, 4, 8, 11), those on the still floor pinned,
+    and the run still resumes exactly."""
     ds = load_dataset(small_floor)
     cfg, _ = auto_recipe(read_traits(ds))
     cfg = dataclasses.replace(cfg.scaled(10), minutes=None, num_gaussians=600, seed=2, motion="nodes", node_count=24,
@@ -261,6 +285,12 @@ def test_one_camera_per_time_with_nodes_tracks_them_by_the_models_motion_and_res
     torch.testing.assert_close(ma.node_times, torch.tensor([ds.frame_times[k] for k in (0, 4, 8, 11)]))
     for k, v in ma.tensors().items():
         torch.testing.assert_close(v, mb.tensors()[k], rtol=0, atol=0)
+    # the nodes on the still floor stay put at every key, through the learning; the others move
+    pinned = a.nodes.still.cpu()
+    assert 0 < int(pinned.sum()) < 24
+    torch.testing.assert_close(ma.node_positions[:, pinned], ma.node_canonical[pinned].expand(4, -1, -1))
+    torch.testing.assert_close(ma.node_rotations[:, pinned], torch.tensor([1.0, 0, 0, 0]).expand(4, int(pinned.sum()), 4))
+    assert not torch.equal(ma.node_positions[:, ~pinned], ma.node_canonical[~pinned].expand(4, -1, -1))
 
 
 def test_motion_auto_stays_quadratic_where_one_set_of_gaussians_does_not_fit(small_spinner, tmp_path):

@@ -24,7 +24,8 @@ keeps every frame's Gaussians on the flow's nodes.
 
 A dataset where no camera films consecutive frames (one camera per time) has no flow: motion 'nodes' then tracks
 the nodes by the model's own motion (`track_nodes_by_motion`; the native motion, fitted by every view of the clip, is
-the scene flow), and each frame keeps its own Gaussians. The learned poses are then keyed every few frames
+the scene flow; most nodes go where Gaussians move with their neighbours, `coherent_travel`, and those on what stays
+still are pinned), and each frame keeps its own Gaussians. The learned poses are then keyed every few frames
 (`TrainConfig.node_key_every`): a pose per frame is fitted by one image and moves to fake its depth.
 """
 
@@ -59,6 +60,11 @@ TEMPLATE_REACH = 3.0
 MOVING = 0.01
 MOTION_KEYS = 2
 MOVING_NODES = 0.75
+#: A Gaussian's travel is the median displacement of this many nearest Gaussians (`coherent_travel`).
+COHERENT_NEIGHBOURS = 16
+#: This share of the still nodes go among the `NEAR_STILL` share of still Gaussians nearest to what moves (`_node_sites`).
+NEAR_STILL_NODES = 0.75
+NEAR_STILL = 0.25
 #: Skin weights are recomputed every this many steps (the canonical means move) and after densification.
 SKIN_EVERY = 100
 
@@ -74,11 +80,13 @@ def node_spacing(canonical: torch.Tensor) -> float:
 @dataclass
 class TrackedNodes:
     """Nodes tracked through the frames: positions ``[F, M, 3]`` and rotations from the canonical frame
-    ``[F, M, 4]`` at each frame (float64); the canonical frame is frame `middle`'s."""
+    ``[F, M, 4]`` at each frame (float64); the canonical frame is frame `middle`'s. `still` ``[M]`` (bool, or None:
+    none) marks nodes on what does not move, which stay put at every frame and are not learned."""
 
     positions: torch.Tensor
     rotations: torch.Tensor
     middle: int
+    still: torch.Tensor | None = None
 
     @property
     def canonical(self) -> torch.Tensor:
@@ -125,19 +133,50 @@ def track_nodes(model: Gaussians4D, ds: Dataset, background: torch.Tensor, count
     return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle)
 
 
-def _node_sites(points: np.ndarray, travel: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices of up to `count` node sites among `points` ``[P, 3]``: `MOVING_NODES` of them by farthest-point
-    sampling among the points that travel (`travel` ``[P]``, how far each moves within a few keys of the middle,
-    above `MOVING` of the points' rms radius), the rest among the still ones. Sampled as one set, a floor or a
-    backdrop many times the moving objects' size would take nearly every node, and each object a handful."""
+def coherent_travel(points: np.ndarray, displacements: list[np.ndarray]) -> np.ndarray:
+    """``[P]`` how far each of `points` ``[P, 3]`` moves with its neighbourhood: over `displacements` (each ``[P, 3]``,
+    to another time), the largest norm of the per-axis median displacement of its `COHERENT_NEIGHBOURS` nearest
+    points (itself included). A surface that moves carries its neighbours along; a floor fitted by one camera per
+    time jitters each Gaussian its own way, and the median cancels that (on the floor sample a quarter of the
+    floor's Gaussians travelled further than the threshold one by one, and FPS among them left 13-17 of 512 nodes
+    on the three objects; with the median, 270-300)."""
+    from scipy.spatial import cKDTree
+
+    k = min(COHERENT_NEIGHBOURS, len(points))
+    _, near = cKDTree(points).query(points, k=k, workers=-1)
+    near = near.reshape(len(points), k)
+    return np.max([np.linalg.norm(np.median(d[near], axis=1), axis=1) for d in displacements], axis=0)
+
+
+def _node_sites(points: np.ndarray, travel: np.ndarray, count: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of up to `count` node sites among `points` ``[P, 3]``, and which of them are still (bool).
+
+    `MOVING_NODES` of them by farthest-point sampling among the points that travel (`travel` ``[P]``, how far each
+    moves with its neighbours within a few keys of the middle, `coherent_travel`, above `MOVING` of the points' rms
+    radius): sampled as one set, a floor or a backdrop many times the moving objects' size would take nearly every
+    node, and each object a handful. The still nodes go `NEAR_STILL_NODES` among the `NEAR_STILL` share of still
+    points nearest to what moves, the rest over all the still ones: a Gaussian takes its nearest nodes whatever they
+    sit on, and with the still nodes spread to the horizon the floor around the objects took the objects' nodes
+    (87 % of the floor sample's floor Gaussians had a tenth or more of their weight on them) and moved with them."""
+    from scipy.spatial import cKDTree
+
+    def spread(rows: np.ndarray, n: int) -> np.ndarray:
+        return rows[farthest_point_subset(points[rows], n, rng)] if n > 0 and len(rows) else rows[:0]
+
     radius = float(np.sqrt(((points - points.mean(0)) ** 2).sum(1).mean()))
     moving = travel > MOVING * radius
-    groups = [np.nonzero(moving)[0], np.nonzero(~moving)[0]]
-    if not len(groups[0]) or not len(groups[1]):
-        return farthest_point_subset(points, count, rng)
+    moves, stays = np.nonzero(moving)[0], np.nonzero(~moving)[0]
+    if not len(moves) or not len(stays):
+        chosen = spread(np.arange(len(points)), count)
+        return chosen, ~moving[chosen]
     first = round(MOVING_NODES * count)
-    picks = [g[farthest_point_subset(points[g], n, rng)] for g, n in zip(groups, (first, count - first)) if n > 0]
-    return np.concatenate(picks)
+    near = round(NEAR_STILL_NODES * (count - first))
+    gap = cKDTree(points[moves]).query(points[stays], workers=-1)[0]
+    collar = spread(stays[gap <= np.quantile(gap, NEAR_STILL)], near)
+    chosen = np.concatenate([spread(moves, first), collar,
+                             spread(np.setdiff1d(stays, collar), count - first - len(collar))])
+    return chosen, ~moving[chosen]
 
 
 def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, seed: int = 0) -> TrackedNodes | None:
@@ -168,8 +207,9 @@ def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, se
     if len(candidates) < 4:
         return None
     probes = (max(middle - MOTION_KEYS, 0), min(middle + MOTION_KEYS, frames - 1))
-    travel = np.max([np.linalg.norm(at(j)[0][candidates] - where[candidates], axis=1) for j in probes], axis=0)
-    sites = where[candidates][_node_sites(where[candidates], travel, count, np.random.default_rng(seed))]
+    travel = coherent_travel(where[candidates], [at(j)[0][candidates] - where[candidates] for j in probes])
+    chosen, still = _node_sites(where[candidates], travel, count, np.random.default_rng(seed))
+    sites = where[candidates][chosen]
     m = len(sites)
     pos = torch.zeros(frames, m, 3, dtype=torch.float64)
     rot = torch.zeros(frames, m, 3, 3, dtype=torch.float64)
@@ -191,7 +231,9 @@ def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, se
                                                                       wk / wk.sum(1, keepdims=True)))
             pos[k + step] = cy + (turn @ (pos[k] - cx)[..., None])[..., 0]
             rot[k + step] = turn @ rot[k]
-    return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle)
+    still = torch.from_numpy(still)
+    pos[:, still], rot[:, still] = pos[middle, still], torch.eye(3, dtype=torch.float64)
+    return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle, still)
 
 
 def node_keys(frames: int, every: int) -> list[int]:
@@ -258,11 +300,14 @@ def rigidity(canonical: torch.Tensor, positions: torch.Tensor, rotations: torch.
 
 class Nodes:
     """The nodes of a run, learned: key times ``[F]`` (the trainer's axis), canonical positions, key poses as
-    parameters with their own Adam, and the skin of the current Gaussians."""
+    parameters with their own Adam (save the `still` ones ``[M]``, pinned: they keep their poses), and the skin of the
+    current Gaussians."""
 
     def __init__(self, key_times: torch.Tensor, canonical: torch.Tensor, positions: torch.Tensor,
-                 rotations: torch.Tensor, sigma: float, lr_positions: float, lr_rotations: float, device) -> None:
+                 rotations: torch.Tensor, sigma: float, lr_positions: float, lr_rotations: float, device,
+                 still: torch.Tensor | None = None) -> None:
         self.key_times = key_times.to(device, torch.float32)
+        self.still = None if still is None or not bool(still.any()) else still.to(device, torch.bool)
         self.canonical = canonical.to(device, torch.float32)
         self.sigma = float(sigma)
         self.positions = torch.nn.Parameter(positions.to(device, torch.float32).contiguous())
@@ -285,6 +330,10 @@ class Nodes:
         return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)
 
     def step(self) -> None:
+        if self.still is not None:  # no gradient, so no Adam moment: a still node's pose never moves
+            for p in (self.positions, self.rotations):
+                if p.grad is not None:
+                    p.grad[:, self.still] = 0.0
         self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
 
@@ -294,12 +343,13 @@ class Nodes:
                                                  "nodes": self._skin[2][0].cpu(), "weights": self._skin[2][1].cpu()}
         return {"key_times": self.key_times.cpu(), "canonical": self.canonical.cpu(), "sigma": self.sigma,
                 "positions": self.positions.detach().cpu(), "rotations": self.rotations.detach().cpu(),
-                "optimizer": self.optimizer.state_dict(), "skin": skin}
+                "optimizer": self.optimizer.state_dict(), "skin": skin,
+                "still": None if self.still is None else self.still.cpu()}
 
     @classmethod
     def from_state(cls, state: dict, lr_positions: float, lr_rotations: float, device) -> "Nodes":
         nodes = cls(state["key_times"], state["canonical"], state["positions"], state["rotations"], state["sigma"],
-                    lr_positions, lr_rotations, device)
+                    lr_positions, lr_rotations, device, state.get("still"))
         nodes.optimizer.load_state_dict(state["optimizer"])
         skin = state.get("skin")
         if skin:  # the skin of the interrupted run, so that the resumed one recomputes it at the same steps

@@ -418,7 +418,7 @@ class Trainer:
             keys = self._node_keys()
             self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64)[keys], step.nodes.canonical,
                                step.nodes.positions[keys], step.nodes.rotations[keys], step.sigma, *self._node_lrs(),
-                               self.device)
+                               self.device, step.nodes.still)
         return step.count
 
     def elapsed(self) -> float:

@@ -233,6 +233,11 @@ def test_node_sites_go_where_neighbourhoods_move_together_not_where_gaussians_ji
     sites, still = _node_sites(points, travel, 96, np.random.default_rng(0))
     assert (sites < 400).sum() >= 48  # most of the three quarters meant for what moves land on the box (before: 1)
     assert not still[sites < 400].any() and still[sites >= 400].sum() == 24  # a quarter still, all on the floor
+    # three quarters of the still ones among the quarter of the floor nearest what moves (spread over the whole
+    # floor, about a quarter would be): the floor around the box takes still nodes, not the box's
+    moves = points[travel > threshold]
+    gap = np.linalg.norm(floor[:, None] - moves[None], axis=-1).min(1)
+    assert int((gap[sites[still] - 400] <= np.quantile(gap, 0.25)).sum()) >= 18
 
 
 @pytest.fixture(scope="module")

@@ -44,7 +44,7 @@ from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
 from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
-from .initialize import static_time
+from .initialize import knn, static_time
 from .motion import FlowTracks, flow_tracks, nearest_key
 
 #: A node moves by the rigid fit of this many nearest Gaussians' tracks.
@@ -140,11 +140,8 @@ def coherent_travel(points: np.ndarray, displacements: list[np.ndarray]) -> np.n
     time jitters each Gaussian its own way, and the median cancels that (on the floor sample a quarter of the
     floor's Gaussians travelled further than the threshold one by one, and FPS among them left 13-17 of 512 nodes
     on the three objects; with the median, 270-300)."""
-    from scipy.spatial import cKDTree
-
-    k = min(COHERENT_NEIGHBOURS, len(points))
-    _, near = cKDTree(points).query(points, k=k, workers=-1)
-    near = near.reshape(len(points), k)
+    others, _ = knn(torch.from_numpy(points), COHERENT_NEIGHBOURS - 1)
+    near = np.concatenate([np.arange(len(points))[:, None], others.numpy()], 1)
     return np.max([np.linalg.norm(np.median(d[near], axis=1), axis=1) for d in displacements], axis=0)
 
 

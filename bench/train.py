@@ -1,9 +1,13 @@
 """Train the default recipe (``auto``, with its time budget) on each procedural sample at its default size and
 score the held-out views beside two trivial baselines and the sample's exact model.
 
-    python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,walker,floor] [--minutes M]
-                          [--iters N] [--profile-steps K] [--device auto|cpu|cuda] [--datasets DIR]
+    python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,walker,floor,walker-dnerf]
+                          [--minutes M] [--iters N] [--profile-steps K] [--device auto|cpu|cuda] [--datasets DIR]
                           [--set FIELD=VALUE ...]
+
+`walker-dnerf` is the walker filmed the way D-NeRF's captures are: 12 cameras at one elevation, 96 frames at 200 px,
+frame f seen by camera f mod 12 alone (``splatreel sample walker --views 12 --time-steps 96 --size 200
+--one-camera-per-time``): a deforming subject in the one-camera-per-time regime, without the floor scene's floor.
 
 Prints a table and writes JSON: per sample `sample`, `regime`, `seconds` (the whole run, set-up included), `iters`,
 `n_gaussians`, `test_psnr`, `test_ssim`, `test_psnr_on_black` (the same model and test views, both composited on
@@ -144,14 +148,26 @@ def sliced_needle_share(trainer, ratio: float = 10.0) -> float:
     return float((var[:, -1] / var[:, 0] > ratio * ratio).float().mean())
 
 
-def upper_bound(name: str, ds) -> float | None:
-    """Test PSNR of the sample's exact model (None when it cannot be built)."""
+def variants() -> dict:
+    """Bench entries beyond the samples at their defaults: name -> (sample, its `DatasetConfig`)."""
+    from splatreel.samples import DatasetConfig
+
+    # the walker filmed the way D-NeRF's captures are (12 cameras, one per time): a deforming subject in the regime
+    # the floor scene brings, without its floor
+    return {"walker-dnerf": ("walker", DatasetConfig(views=12, frames=96, size=200, one_camera_per_time=True))}
+
+
+def upper_bound(name: str, ds, frames: int | None = None) -> float | None:
+    """Test PSNR of the sample's exact model (None when it cannot be built), keyed at `frames` times (None: its
+    default), with as many Gaussians per key as at its default."""
     from splatreel.errors import SplatreelError
     from splatreel.samples import build_model
+    from splatreel.samples.gaussians import DEFAULT_FRAMES, DEFAULT_GAUSSIANS
     from splatreel.train.evaluate import evaluate
 
+    count = None if frames is None else round(DEFAULT_GAUSSIANS * (frames + 1) / (DEFAULT_FRAMES + 1))
     try:
-        model = build_model(name)
+        model = build_model(name, num_gaussians=count, frames=frames)
     except SplatreelError:
         return None
     return evaluate(model, ds.test, ds.background, progress=False)["psnr"]
@@ -213,14 +229,19 @@ def main() -> None:
     from splatreel.train.recipe import auto_recipe, read_traits
     from splatreel.train.trainer import Trainer
 
-    names = args.samples.split(",") if args.samples else [*SAMPLES, *SCENES]
+    variant = variants()
+    names = args.samples.split(",") if args.samples else [*SAMPLES, *SCENES, *variant]
+    unknown = [n for n in names if n not in SAMPLES and n not in SCENES and n not in variant]
+    if unknown:
+        ap.error(f"unknown sample {unknown[0]!r}: one of {', '.join([*SAMPLES, *SCENES, *variant])}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
+            sample, config = variant.get(name, (name, None))
             data = (args.datasets or Path(tmp)) / name
             t = time.perf_counter()
             if not data.exists():
-                write_dataset(name, data)
+                write_dataset(sample, data, config)
             gen_s = time.perf_counter() - t
             ds = load_dataset(data)
             ref_ms = reference_ms(args.device)
@@ -243,7 +264,7 @@ def main() -> None:
             on_black = evaluate(model, ds.test, (0.0, 0.0, 0.0), progress=False)["psnr"]
             fit = evaluate(model, ds.train[::FIT_EVERY], ds.background, progress=False)["psnr"]
             base = baselines(ds.test, ds.train, ds.background)
-            bound = upper_bound(name, ds)
+            bound = upper_bound(sample, ds, None if config is None else config.frames)
             rows.append({"sample": name, "regime": "one camera per time" if traits.one_view_per_time
                          else "image matrix", "seconds": round(seconds, 2), "minutes": cfg.minutes,
                          "iters": res.iterations, "n_gaussians": res.n_gaussians,

@@ -10,6 +10,8 @@ positive elevation above) all look at the origin from `radius`, with square pixe
 
 * Training views form an image matrix: ``views`` azimuths ``360 * v / views`` at one `elevation`, times
   ``frames`` key times ``f / (frames - 1)``. Images are ordered by time, then view: ``r_{f * views + v}``.
+  With ``one_camera_per_time`` the same rig films the way D-NeRF's captures do: frame f is seen by camera
+  ``f mod views`` alone (``r_f``).
 * Test views probe novel views AND novel times: azimuths half-way between training azimuths, elevations
   alternating ``elevation - 20`` and ``elevation + 15``, times half-way between training times. Test image 0 is at
   t = 0, because D-NeRF's loader asserts that every split starts at time 0; all others lie strictly between
@@ -61,6 +63,8 @@ class DatasetConfig:
         radius: camera distance from the origin (must clear the object's 0.9 ball).
         fov: horizontal = vertical field of view, degrees.
         test_views: number of test images (0 writes empty test/val splits).
+        one_camera_per_time: film frame f with camera ``f mod views`` only (D-NeRF's monocular regime) instead of
+            every camera at every frame.
 
     Antialiasing is the renderer's (`MeshRenderer` supersample and msaa), recorded in ``sample.json``.
     """
@@ -72,6 +76,7 @@ class DatasetConfig:
     radius: float = 2.5
     fov: float = DEFAULT_FOV_DEG
     test_views: int = 16
+    one_camera_per_time: bool = False
 
     def __post_init__(self) -> None:
         def need(cond: bool, msg: str) -> None:
@@ -117,10 +122,13 @@ def _camera(config: DatasetConfig, elevation: float, azimuth: float) -> Camera:
 
 
 def train_views(config: DatasetConfig) -> list[SampleView]:
-    """The training image matrix, ordered by time then azimuth."""
+    """The training image matrix, ordered by time then azimuth; with `DatasetConfig.one_camera_per_time`, frame f by
+    camera ``f mod views`` alone."""
     out = []
     for f, t in enumerate(train_times(config.frames)):
         for v in range(config.views):
+            if config.one_camera_per_time and v != f % config.views:
+                continue
             az = 360.0 * v / config.views
             out.append(SampleView("train", len(out), t, az, config.elevation, _camera(config, config.elevation, az)))
     return out
@@ -158,8 +166,9 @@ def sample_json(obj: SampleObject, config: DatasetConfig, renderer: MeshRenderer
                    "diffuse": DIFFUSE, "background": "transparent (straight alpha)"},
         "world": "Blender: +z up; cameras: orbit(up='z'), azimuth 0 on +x towards +y, looking at the origin",
         "time_range": [0.0, 1.0],
-        "frame_order": "train: r_{f*views+v}, grouped by time then view; test: by time (test image 0 at t=0, "
-                       "the others half-way between training times)",
+        "frame_order": ("train: r_f, frame f by camera f mod views alone" if config.one_camera_per_time else
+                        "train: r_{f*views+v}, grouped by time then view") +
+                       "; test: by time (test image 0 at t=0, the others half-way between training times)",
         "splits": {"train": num_train, "test": num_test},
     }
 

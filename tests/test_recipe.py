@@ -16,8 +16,8 @@ from splatreel.train.config import preset
 from splatreel.train.data import load_dataset
 from splatreel.train.points import find_point_cloud, read_point_cloud
 from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_MINUTES,
-                                   MATRIX_TEMPORAL_STD_FRAMES, ONE_VIEW_MINUTES, SCALE_RATIO_WEIGHT, auto_recipe,
-                                   read_traits)
+                                   MATRIX_TEMPORAL_STD_FRAMES, ONE_VIEW_MINUTES, ONE_VIEW_NODE_KEY_EVERY,
+                                   SCALE_RATIO_WEIGHT, auto_recipe, read_traits)
 from splatreel.train.trainer import BudgetBar, Trainer
 
 from conftest import sample_dataset
@@ -69,9 +69,12 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert long_clip.t_scale_init_frames == pytest.approx(9.5)  # a tenth of the clip
     assert long_clip.batch_size == cfg.batch_size == 8 and "8 images per step" in text
     assert cfg.clip_duration == 5.0 and "--clip-duration" in text
-    assert cfg.flow_motion_at == 0.0 and "--flow-motion-at" not in text  # no camera films consecutive frames
-    assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text
-    assert cfg.motion == "quadratic" and "quadratic motion" in text and "--motion" in text
+    assert cfg.inbetween_share == 0.0 and "--inbetween-share" not in text  # no camera films consecutive frames
+    # control nodes tracked by the model's own motion at the flow step's share, their poses keyed every 8 frames
+    assert cfg.motion == "nodes" and cfg.flow_motion_at == FLOW_MOTION_AT and cfg.node_template == "auto"
+    assert "quadratic motion until 30% of the run, then control nodes" in text and "--motion to change" in text
+    assert cfg.node_key_every == ONE_VIEW_NODE_KEY_EVERY == 8 and "keyed every 8 frames" in text
+    assert "--node-key-every to change" in text
     assert cfg.densify.split == "space" and "split Gaussians in space only" in text and "--split" in text
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
     for pixels, cap in ((25565, 60_000), (40_000, 100_000), (80_000, 150_000)):  # 2.5 per opaque pixel
@@ -233,11 +236,12 @@ def test_help_states_the_recipes_budgets_and_motion(capsys):
         main(["train", "--help"])
     said = " ".join(capsys.readouterr().out.split())
     assert "5 for an image matrix, 10 for one camera per time" in said
-    assert "auto for an image matrix, quadratic for one camera per time" in said
+    assert "auto for an image matrix, nodes for one camera per time" in said
+    assert f"(default: the recipe's, {ONE_VIEW_NODE_KEY_EVERY} for one camera per time, else 1;" in said
     # the help states the recipe's own values
     assert f"more than 10:1 anisotropic (default: the recipe's, {SCALE_RATIO_WEIGHT:g};" in said
     assert f"(default: the recipe's, {CLIP_DURATION:g}; the checkpoint keeps" in said
-    assert f"(default: the recipe's, {FLOW_MOTION_AT:g} for an image matrix; 0 = never" in said
+    assert f"(default: the recipe's, {FLOW_MOTION_AT:g}; 0 = never" in said
     assert f"(default: the recipe's, {INBETWEEN_SHARE:g} for an image matrix; 0 = none" in said
 
 
@@ -295,7 +299,7 @@ def test_named_presets_are_kept():
 def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tmp_path, capsys):
     out = tmp_path / "floor.safetensors"
     assert main(["train", str(small_floor), "--out", str(out), "--iters", "2", "--num-gaussians", "300",
-                 "--inbetween-share", "0.3", "--flow-motion-at", "0.5", "--quiet"]) == 0
+                 "--motion", "quadratic", "--inbetween-share", "0.3", "--flow-motion-at", "0.5", "--quiet"]) == 0
     said = capsys.readouterr().out
     assert "--flow-motion-at and --inbetween-share ignored: no camera films two consecutive frames" in said
     assert "preset auto, 2 iterations" in said and "10 minutes (" in said and "--iters 2 given instead)" in said
@@ -308,6 +312,14 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
     model = load_checkpoint(out).model
     assert model.kind == "skinned" and model.num_keys == 4  # 12 frames keyed at 0, 4, 8, 11
+    # the recipe's own: nodes at 30% of the run, keyed every 8 frames; its flow share is no news to the user
+    out = tmp_path / "recipe.safetensors"
+    assert main(["train", str(small_floor), "--out", str(out), "--iters", "6", "--num-gaussians", "300",
+                 "--quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
+    model = load_checkpoint(out).model
+    assert model.kind == "skinned" and model.num_keys == 3  # 12 frames keyed at 0, 8, 11
 
 
 def test_split_option_overrides_the_recipe(small_floor, tmp_path, capsys):

@@ -360,3 +360,33 @@ def test_cli_writes_dataset_and_model(tmp_path, capsys):
     assert loaded.provenance["tool"] == "splatreel sample" and loaded.provenance["sample"] == "morph"
     assert main(args) == 1  # refuses to overwrite
     assert main(args + ["--force"]) == 0
+
+
+def test_one_camera_per_time_films_each_frame_from_one_camera_of_the_matrix(tmp_path, capsys):
+    """--one-camera-per-time keeps, of the matrix, frame f from camera f mod views: the same images, one per time,
+    which the trainer's recipe reads as D-NeRF's monocular regime."""
+    from splatreel.train.data import load_dataset
+    from splatreel.train.recipe import read_traits
+
+    common = ["--views", "3", "--time-steps", "7", "--size", "16", "--test-views", "1"]
+    assert main(["sample", "wave", "--out", str(tmp_path / "matrix"), *common]) == 0
+    assert main(["sample", "wave", "--out", str(tmp_path / "mono"), *common, "--one-camera-per-time"]) == 0
+    mono, matrix = load_split(tmp_path / "mono", "train"), load_split(tmp_path / "matrix", "train")
+    assert len(mono["frames"]) == 7 and len(matrix["frames"]) == 21
+    for f, fr in enumerate(mono["frames"]):
+        same = matrix["frames"][3 * f + f % 3]
+        assert fr["file_path"] == f"./train/r_{f:03d}" and fr["time"] == same["time"]
+        assert fr["transform_matrix"] == same["transform_matrix"]
+        assert orbit_angles(frame_camera(mono, fr))[0] == pytest.approx(120.0 * (f % 3), abs=1e-6)
+        assert (tmp_path / "mono" / f"{fr['file_path']}.png").read_bytes() == \
+            (tmp_path / "matrix" / f"{same['file_path']}.png").read_bytes()
+    assert load_split(tmp_path / "mono", "test") == load_split(tmp_path / "matrix", "test")
+    info = json.loads((tmp_path / "mono" / "sample.json").read_text())
+    assert info["render"]["one_camera_per_time"] is True and info["splits"]["train"] == 7
+    assert read_traits(load_dataset(tmp_path / "mono")).one_view_per_time
+    assert not read_traits(load_dataset(tmp_path / "matrix")).one_view_per_time
+    capsys.readouterr()
+    # the floor scene has its own rig, already one camera per time
+    assert main(["sample", "floor", "--out", str(tmp_path / "floor"), "--one-camera-per-time"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--one-camera-per-time does not apply to sample 'floor'" in err

@@ -10,7 +10,8 @@ HELP = "render a procedural animated test object to a dataset (D-NeRF layout) an
 DESCRIPTION = """\
 Render a procedural animated test object (see --list) from an orbit of cameras to a multi-view video dataset in
 the D-NeRF layout: DIR/transforms_{train,test,val}.json, DIR/train/r_000.png ..., DIR/test/..., DIR/sample.json.
-Training images are an image matrix of --views azimuths x --time-steps times (ordered by time, then view); test images
+Training images are an image matrix of --views azimuths x --time-steps times (ordered by time, then view), or with
+--one-camera-per-time one image per time, frame f by camera f mod --views (D-NeRF's monocular regime); test images
 use other azimuths and elevations at times between the training frames. --model also writes a native 4D Gaussian
 checkpoint built from the object's known motion (no training); --trained copies the bundled checkpoint that
 `splatreel train` fitted to the sample's default dataset (samples marked 'trained' in --list).
@@ -29,6 +30,7 @@ examples:
   splatreel sample --list
   splatreel sample spinner --out data/spinner
   splatreel sample wave --out data/wave --views 8 --time-steps 24 --size 512
+  splatreel sample walker --out data/walker-dnerf --views 12 --time-steps 96 --size 200 --one-camera-per-time
   splatreel sample morph --model morph.safetensors
   splatreel sample spinner --trained spinner.safetensors
   splatreel sample floor --out data/floor --time-steps 48
@@ -55,6 +57,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     d.add_argument("--fov", type=positive_number, default=None,
                    help="field of view in degrees (default 49.13: fx = 280 px at 256 px, as Efficient4D; floor: 45)")
     d.add_argument("--test-views", type=non_negative_count, default=None, help="number of test images (default 16; floor: 12)")
+    d.add_argument("--one-camera-per-time", action="store_true",
+                   help="film the way D-NeRF's captures do: frame f is seen by camera f mod --views alone, instead "
+                        "of every camera at every frame (e.g. --views 12 --time-steps 96)")
     m = p.add_argument_group("model")
     m.add_argument("--model", metavar="MODEL.safetensors",
                    help="also write a 4D Gaussian checkpoint built from the sample's known motion")
@@ -76,7 +81,8 @@ def _object_config(args: argparse.Namespace):
 
     return DatasetConfig(**_given(args, views=args.views, frames=args.time_steps, size=args.size,
                                   elevation=args.elevation, radius=args.radius, fov=args.fov,
-                                  test_views=args.test_views))
+                                  test_views=args.test_views,
+                                  one_camera_per_time=args.one_camera_per_time or None))
 
 
 def _scene_config(args: argparse.Namespace):
@@ -84,7 +90,8 @@ def _scene_config(args: argparse.Namespace):
     from ..errors import SplatreelError
     from ..samples import FloorConfig
 
-    orbit_only = {"--views": args.views, "--elevation": args.elevation, "--radius": args.radius}
+    orbit_only = {"--views": args.views, "--elevation": args.elevation, "--radius": args.radius,
+                  "--one-camera-per-time": args.one_camera_per_time or None}
     given = [flag for flag, value in orbit_only.items() if value is not None]
     if given:
         raise SplatreelError(f"{', '.join(given)} do{'es' if len(given) == 1 else ''} not apply to sample "

@@ -27,7 +27,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
     from splatreel.train.config import MOTIONS, NODE_TEMPLATES, PRESETS, SPLITS
     from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_MINUTES,
-                                        ONE_VIEW_MINUTES, SCALE_RATIO_WEIGHT)
+                                        ONE_VIEW_MINUTES, ONE_VIEW_NODE_KEY_EVERY, SCALE_RATIO_WEIGHT)
 
     p.add_argument("data", metavar="DATA", help="dataset folder")
     p.add_argument("--out", "-o", required=True, metavar="CKPT", help="output checkpoint (.safetensors)")
@@ -78,9 +78,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flow-motion-at", type=fraction, metavar="F",
                    help="at this share of the run, set every Gaussian's velocity once from the optical flow between "
                         "each camera's consecutive frames, lifted to 3D by the model's depth (default: the recipe's, "
-                        f"{FLOW_MOTION_AT:g} for an image matrix; 0 = never; needs cameras that film consecutive "
-                        "frames, else it is ignored with a note, save with --motion nodes, whose nodes are then "
-                        "tracked by the model's own motion at this share)")
+                        f"{FLOW_MOTION_AT:g}; 0 = never; needs cameras that film consecutive frames, else it is "
+                        "ignored with a note, save with --motion nodes, whose nodes are then tracked by the model's "
+                        "own motion at this share)")
     p.add_argument("--inbetween-share", type=fraction, metavar="F",
                    help="share of the images a step draws that are frames optical flow interpolates half-way "
                         "between a camera's consecutive frames (default: the recipe's, "
@@ -95,7 +95,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "a skinned checkpoint) or auto (quadratic until the flow step; then, where one rigid motion "
                         "per frame, fitted to the images, carries the middle frame's Gaussians to every frame, nodes "
                         "carrying that one set for the whole clip, else quadratic on) (default: the recipe's, auto "
-                        "for an image matrix, quadratic for one camera per time; the named presets linear; a resumed "
+                        "for an image matrix, nodes for one camera per time; the named presets linear; a resumed "
                         "run keeps its own)")
     p.add_argument("--node-template", choices=NODE_TEMPLATES,
                    help="with nodes: keep only the middle frame's Gaussians, drawn at every time and carried by the "
@@ -105,7 +105,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--node-key-every", type=count, metavar="K",
                    help="with nodes: key their learned poses every K frames (and at the last), the times between on "
                         "their spline; with one camera per time a pose keyed at every frame is fitted by one image "
-                        "and can fake its depth (default 1; a resumed run keeps its own)")
+                        f"and can fake its depth (default: the recipe's, {ONE_VIEW_NODE_KEY_EVERY} for one camera "
+                        "per time, else 1; a resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -248,9 +249,9 @@ def run(args: argparse.Namespace) -> int:
         # a count of iterations replaces the time budget
         instead = f"--iters {args.iters}" if d.option == "--minutes" and args.iters and not args.minutes else None
         print(f"  - {d.line(given_value(args, d.option), instead)}")
-    unused = [o for o, v in (("--flow-motion-at", cfg.flow_motion_at and cfg.motion != "nodes"),
-                             ("--inbetween-share", cfg.inbetween_share)) if v]
-    if unused and not camera_videos(ds):  # the recipe sets them only for videos: the user asked
+    unused = [o for o, v in (("--flow-motion-at", args.flow_motion_at and cfg.motion != "nodes"),
+                             ("--inbetween-share", args.inbetween_share)) if v]
+    if unused and not camera_videos(ds):  # what the user asked for; the recipe's own values are not news
         print(f"splatreel train: {' and '.join(unused)} ignored: no camera films two consecutive frames, so there is "
               "no flow to follow")
     print(f"splatreel train: background {background_name(ds.background)}: {ds.background_reason}"

@@ -65,26 +65,12 @@ def spline_segment(p0: Tensor, p1: Tensor, p2: Tensor, p3: Tensor, has_before: T
                   + (3 * p1 - p0 - 3 * p2 + p3) * u ** 3)
 
 
-def nlerp_quaternions(qi: Tensor, qj: Tensor, u: Tensor) -> Tensor:
-    """The normalised lerp of quaternions `qi` to `qj` ``[T, ..., 4]`` at share u ``[T]``, along the shorter arc."""
+def nlerp(qi: Tensor, qj: Tensor, u: Tensor) -> Tensor:
+    """Rotation matrices of the normalised lerp of quaternions `qi` to `qj` ``[T, ..., 4]`` at share u ``[T]``,
+    along the shorter arc."""
     qj = torch.where((qi * qj).sum(-1, keepdim=True) < 0, -qj, qj)
     u = u.to(qi.dtype).view((-1,) + (1,) * (qi.dim() - 1))
-    return quaternion.normalize(qi * (1 - u) + qj * u)
-
-
-def nlerp(qi: Tensor, qj: Tensor, u: Tensor) -> Tensor:
-    """Rotation matrices of `nlerp_quaternions`."""
-    return quaternion.to_rotmat(nlerp_quaternions(qi, qj, u))
-
-
-def key_poses_at(times: Tensor, positions: Tensor, rotations: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
-    """Every node's position ``[T, M, 3]`` and rotation quaternion ``[T, M, 4]`` at the times `t` ``[T]``, from key
-    poses ``[F, M, 3]``, ``[F, M, 4]`` at key times ``[F]``, on the spline and the nlerp of `node_poses`
-    (differentiable in the poses)."""
-    if len(times) == 1:
-        return positions[:1].expand(len(t), -1, -1), quaternion.normalize(rotations[:1]).expand(len(t), -1, -1)
-    i, u = key_segments(times, t)
-    return catmull_rom(positions, i, u), nlerp_quaternions(rotations[i], rotations[i + 1], u)
+    return quaternion.to_rotmat(quaternion.normalize(qi * (1 - u) + qj * u))
 
 
 def node_poses(times: Tensor, positions: Tensor, rotations: Tensor, t: float) -> tuple[Tensor, Tensor]:

@@ -312,37 +312,3 @@ def test_motion_auto_stays_quadratic_where_one_set_of_gaussians_does_not_fit(sma
         "one set of Gaussians for the whole clip") and node_outcome_line(None, "auto") is None
     model = load_checkpoint(tmp_path / "a.safetensors").model
     assert model.kind != "skinned" and model.accelerations is not None
-
-
-def test_tracked_node_poses_hold_the_tracks_at_every_frame_and_learn_a_keyed_correction(small_floor, tmp_path):
-    """`node_poses` 'tracked': the checkpoint keys the nodes at every frame; with the poses' learning rates at 0
-    those are the tracks themselves, and learned, a correction keyed every `node_key_every` frames moves them (the
-    same correction for a node at the frames around a key); the run resumes exactly."""
-    ds = load_dataset(small_floor)
-    cfg, _ = auto_recipe(read_traits(ds))
-    cfg = dataclasses.replace(cfg.scaled(10), minutes=None, num_gaussians=600, seed=2, node_count=24,
-                              node_key_every=4, node_poses="tracked")
-    assert cfg.motion == "nodes"  # the recipe's, one camera per time
-    held = Trainer(ds, dataclasses.replace(cfg, lr_node_positions=0.0, lr_node_rotations=0.0),
-                   tmp_path / "held.safetensors", progress=False)
-    held.run()
-    tracks = held.nodes.base
-    mh = load_checkpoint(tmp_path / "held.safetensors").model
-    assert mh.kind == "skinned" and mh.num_keys == len(ds.frame_times) == 12
-    torch.testing.assert_close(mh.node_times, torch.tensor(ds.frame_times, dtype=torch.float32))
-    torch.testing.assert_close(mh.node_positions, tracks[1].cpu(), rtol=0, atol=0)
-    torch.testing.assert_close(mh.node_rotations, tracks[2].cpu(), rtol=0, atol=0)
-    assert float((tracks[1][1:] - tracks[1][:-1]).abs().max()) > 0  # the tracks move between frames
-
-    a = Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False)
-    a.run()
-    ma = load_checkpoint(tmp_path / "a.safetensors").model
-    assert a.nodes.positions.shape[0] == 4  # the correction's keys: 0, 4, 8, 11
-    torch.testing.assert_close(a.nodes.base[1], tracks[1])  # the same tracks, then corrected
-    moved = (ma.node_positions - tracks[1].cpu()).norm(dim=-1)  # [12 frames, 24 nodes]
-    assert float(moved.max()) > 0 and float(moved[:, a.nodes.still.cpu()].max()) == 0  # still nodes stay pinned
-    Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=5)
-    Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
-    mb = load_checkpoint(tmp_path / "b.safetensors").model
-    for k, v in ma.tensors().items():
-        torch.testing.assert_close(v, mb.tensors()[k], rtol=0, atol=0)

@@ -171,10 +171,6 @@ class TrainConfig:
     #: spline (`splatreel.skinned`): with one camera per time a pose keyed at every frame is fitted by one image and
     #: moves to fake its depth; keyed every few frames, each pose is held by the several cameras around it.
     node_key_every: int = 1
-    #: What the nodes' key poses are: 'keyed' (learned poses, started from the tracks at the keys) or 'tracked' (the
-    #: tracked pose at every frame, held, each corrected by the learned poses' spline there: the keys then correct
-    #: the tracks without smoothing away their motion between keys).
-    node_poses: str = "keyed"
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
     #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes

@@ -42,7 +42,7 @@ from splatreel.covariance import (condition_on_time, covariance_4d_from_motion, 
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
-from splatreel.skinned import SkinnedGaussians, key_poses_at, nearest_nodes, skin_weights
+from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
 from .initialize import knn, static_time
 from .motion import FlowTracks, flow_tracks, nearest_key
@@ -302,12 +302,8 @@ class Nodes:
 
     def __init__(self, key_times: torch.Tensor, canonical: torch.Tensor, positions: torch.Tensor,
                  rotations: torch.Tensor, sigma: float, lr_positions: float, lr_rotations: float, device,
-                 still: torch.Tensor | None = None,
-                 base: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None) -> None:
-        """`base`: (frame times ``[B]``, positions ``[B, M, 3]``, rotations ``[B, M, 4]``), the tracked pose at every
-        frame, held fixed; the learned key poses are then a correction on top of it (`poses`)."""
+                 still: torch.Tensor | None = None) -> None:
         self.key_times = key_times.to(device, torch.float32)
-        self.base = None if base is None else tuple(x.to(device, torch.float32).contiguous() for x in base)
         self.still = None if still is None or not bool(still.any()) else still.to(device, torch.bool)
         self.canonical = canonical.to(device, torch.float32)
         self.sigma = float(sigma)
@@ -318,44 +314,19 @@ class Nodes:
         d, j = nearest_nodes(self.canonical, self.canonical, RIGID_NEIGHBOURS + 1)
         self.pairs, self.pair_weights = j[:, 1:], torch.exp(-0.5 * (d[:, 1:] / self.sigma) ** 2)
         self._skin: tuple | None = None
-        self._posed: tuple | None = None
-
-    def poses(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The key times ``[F]``, positions ``[F, M, 3]`` and rotations ``[F, M, 4]`` that carry the Gaussians: the
-        learned keys, or with a tracked `base` its every frame, each turned and moved by the learned correction
-        there (on the keys' spline: the pose (R, p) becomes (dR R, p + dp))."""
-        if self.base is None:
-            return self.key_times, self.positions, self.rotations
-        times, positions, rotations = self.base
-        shift, turn = key_poses_at(self.key_times, self.positions, self.rotations, times)
-        return times, positions + shift, quaternion.multiply(turn, rotations)
 
     def skinned(self, gaussians: Gaussians4D, step: int) -> SkinnedGaussians:
         """`gaussians` (canonical) carried by these nodes, their skin recomputed when the count changed or every
         `SKIN_EVERY` steps."""
         if self._skin is None or self._skin[0] != len(gaussians) or step - self._skin[1] >= SKIN_EVERY:
             self._skin = (len(gaussians), step, skin_weights(gaussians.means, self.canonical, self.sigma))
-        times, positions, rotations = self.poses()
-        if self.base is not None and torch.is_grad_enabled():
-            # the poses as leaves: a step renders several images from one model and backpropagates each alone;
-            # `step` carries their summed gradient on to the learned correction
-            self._posed = ((positions, rotations), (positions.detach().requires_grad_(),
-                                                    rotations.detach().requires_grad_()))
-            positions, rotations = self._posed[1]
-        return SkinnedGaussians(gaussians, self.canonical, times, positions, rotations, self.sigma,
+        return SkinnedGaussians(gaussians, self.canonical, self.key_times, self.positions, self.rotations, self.sigma,
                                 skin=self._skin[2], with_velocities=False)
 
     def rigidity(self) -> torch.Tensor:
-        _, positions, rotations = self.poses()
-        return rigidity(self.canonical, positions, rotations, self.pairs, self.pair_weights, self.sigma)
+        return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)
 
     def step(self) -> None:
-        if self._posed is not None:
-            posed, leaves = self._posed
-            self._posed = None
-            pairs = [(p, leaf.grad) for p, leaf in zip(posed, leaves) if leaf.grad is not None]
-            if pairs:
-                torch.autograd.backward([p for p, _ in pairs], [g for _, g in pairs])
         if self.still is not None:  # no gradient, so no Adam moment: a still node's pose never moves
             for p in (self.positions, self.rotations):
                 if p.grad is not None:
@@ -370,13 +341,12 @@ class Nodes:
         return {"key_times": self.key_times.cpu(), "canonical": self.canonical.cpu(), "sigma": self.sigma,
                 "positions": self.positions.detach().cpu(), "rotations": self.rotations.detach().cpu(),
                 "optimizer": self.optimizer.state_dict(), "skin": skin,
-                "still": None if self.still is None else self.still.cpu(),
-                "base": None if self.base is None else [x.cpu() for x in self.base]}
+                "still": None if self.still is None else self.still.cpu()}
 
     @classmethod
     def from_state(cls, state: dict, lr_positions: float, lr_rotations: float, device) -> "Nodes":
         nodes = cls(state["key_times"], state["canonical"], state["positions"], state["rotations"], state["sigma"],
-                    lr_positions, lr_rotations, device, state.get("still"), state.get("base"))
+                    lr_positions, lr_rotations, device, state.get("still"))
         nodes.optimizer.load_state_dict(state["optimizer"])
         skin = state.get("skin")
         if skin:  # the skin of the interrupted run, so that the resumed one recomputes it at the same steps

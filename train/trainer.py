@@ -266,12 +266,9 @@ class Trainer:
         if self.nodes is None:
             return model
         n = self.nodes
-        frames = range(len(self.source.frame_times)) if n.base is not None else self._node_keys()
-        keys = torch.tensor([self.source.frame_times[k] for k in frames], dtype=torch.float32)
-        with torch.no_grad():
-            _, positions, rotations = n.poses()
-        return SkinnedGaussians(model, n.canonical.cpu(), keys, positions.detach().cpu(), rotations.detach().cpu(),
-                                n.sigma)
+        keys = torch.tensor([self.source.frame_times[k] for k in self._node_keys()], dtype=torch.float32)
+        return SkinnedGaussians(model, n.canonical.cpu(), keys,
+                                n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
@@ -418,16 +415,10 @@ class Trainer:
             self.strategy_state = strategy.initialize_state(len(self.params["means"]), self.device)
             self._nbr = None
         if step.nodes is not None:
-            keys, times, tracked = self._node_keys(), torch.tensor(self.ds.frame_times, dtype=torch.float64), step.nodes
-            if self.cfg.node_poses == "tracked":  # the tracks at every frame, a learned correction keyed on them
-                positions = torch.zeros_like(tracked.positions[keys])
-                rotations = torch.zeros_like(tracked.rotations[keys])
-                rotations[..., 0] = 1.0
-                base = (times, tracked.positions, tracked.rotations)
-            else:
-                positions, rotations, base = tracked.positions[keys], tracked.rotations[keys], None
-            self.nodes = Nodes(times[keys], tracked.canonical, positions, rotations, step.sigma, *self._node_lrs(),
-                               self.device, tracked.still, base)
+            keys = self._node_keys()
+            self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64)[keys], step.nodes.canonical,
+                               step.nodes.positions[keys], step.nodes.rotations[keys], step.sigma, *self._node_lrs(),
+                               self.device, step.nodes.still)
         return step.count
 
     def elapsed(self) -> float:

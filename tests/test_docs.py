@@ -22,7 +22,7 @@ DOCS = ROOT / "docs"
 #: Options of other programs that the docs name on purpose (the official 4DGS code, bench scripts, pytest, mkdocs).
 FOREIGN_OPTIONS = {
     "--loaded_pth",  # official 4DGS: the option that reads a checkpoint dict
-    "--json", "--rounds", "--ref-full",  # bench/*.py
+    "--json", "--rounds", "--ref-full", "--set",  # bench/*.py
     "--strict",  # mkdocs build
     "--head", "--node-ip-address", "--num-cpus", "--port",  # ray start
 }

@@ -162,70 +162,71 @@ def use_exact_nodes() -> list[str]:
 _PART_REACH = 0.12
 
 
-def _floor_poses() -> tuple[tuple[str, ...], np.ndarray, dict, dict, dict]:
-    """The floor scene's moving parts, their names, the pose times ``[G]`` (shares of the clip), and per part the
-    rotations ``[G, 3, 3]`` and translations ``[G, 3]`` of the pose ``x(s) = R(s) x_ref + T(s)`` (x_ref: the part at
-    s = 0) and a k-d tree of x_ref's vertices."""
-    from scipy.spatial import cKDTree
+class _FloorParts:
+    """The floor scene's moving parts (`names`) and their exact rigid motions: at the pose times `grid` ``[G]``
+    (shares of the clip), per part the rotations ``[G, 3, 3]`` and translations ``[G, 3]`` of the pose
+    ``x(s) = R(s) x_ref + T(s)`` (x_ref: the part at s = 0) and a k-d tree of x_ref's vertices."""
 
-    from splatreel.pointsets import rigid_fit
-    from splatreel.samples.floor import FloorScene
+    def __init__(self) -> None:
+        from scipy.spatial import cKDTree
 
-    scene = FloorScene()
-    names = ("ball", "box", "pendulum")
-    grid = np.linspace(0.0, 1.0, 1001)
-    verts = {n: np.stack([scene.parts(float(s))[n].vertices for s in grid]) for n in names}
-    rot, trans, trees = {}, {}, {}
-    for n in names:
-        ref = verts[n][0]
-        r, c0, c1, _ = rigid_fit(np.broadcast_to(ref, verts[n].shape), verts[n])
-        err = np.abs(np.einsum("gij,vj->gvi", r, ref - c0[0]) + c1[:, None] - verts[n]).max()
-        assert err < 1e-6, (n, err)  # each part is rigid
-        rot[n] = torch.from_numpy(r)
-        trans[n] = torch.from_numpy(c1 - np.einsum("gij,j->gi", r, c0[0]))
-        trees[n] = cKDTree(ref)
-    return names, grid, rot, trans, trees
+        from splatreel.pointsets import rigid_fit
+        from splatreel.samples.floor import FloorScene
 
+        scene = FloorScene()
+        self.names = ("ball", "box", "pendulum")
+        self.grid = np.linspace(0.0, 1.0, 1001)
+        verts = {n: np.stack([scene.parts(float(s))[n].vertices for s in self.grid]) for n in self.names}
+        self.rot, self.trans, self.trees = {}, {}, {}
+        for n in self.names:
+            ref = verts[n][0]
+            r, c0, c1, _ = rigid_fit(np.broadcast_to(ref, verts[n].shape), verts[n])
+            err = np.abs(np.einsum("gij,vj->gvi", r, ref - c0[0]) + c1[:, None] - verts[n]).max()
+            assert err < 1e-6, (n, err)  # each part is rigid
+            self.rot[n] = torch.from_numpy(r)
+            self.trans[n] = torch.from_numpy(c1 - np.einsum("gij,j->gi", r, c0[0]))
+            self.trees[n] = cKDTree(ref)
+        self._cache: dict = {"key": None}
 
-def _floor_part(x: torch.Tensor, g: torch.Tensor, names, rot, trans, trees) -> torch.Tensor:
-    """``[N]`` the part (index into `names`) nearest each point ``x [N, 3]`` at pose index ``g [N]``, -1 (static)
-    when none is within `_PART_REACH`."""
-    best = torch.full((len(x),), _PART_REACH, dtype=torch.float64)
-    part = torch.full((len(x),), -1, dtype=torch.long)
-    for p, n in enumerate(names):
-        local = (rot[n][g].transpose(1, 2) @ (x - trans[n][g])[..., None])[..., 0]
-        d = torch.from_numpy(trees[n].query(local.numpy())[0])
-        nearer = d < best
-        best[nearer], part[nearer] = d[nearer], p
-    return part
+    def index(self, s: torch.Tensor) -> torch.Tensor:
+        """The pose index nearest each share `s` of the clip (clamped to it)."""
+        return (s.clamp(0, 1) * (len(self.grid) - 1)).round().long()
+
+    def part(self, x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """``[N]`` the part (index into `names`) nearest each point ``x [N, 3]`` at pose index ``g [N]``, -1 (static)
+        when none is within `_PART_REACH`."""
+        best = torch.full((len(x),), _PART_REACH, dtype=torch.float64)
+        part = torch.full((len(x),), -1, dtype=torch.long)
+        for p, n in enumerate(self.names):
+            local = (self.rot[n][g].transpose(1, 2) @ (x - self.trans[n][g])[..., None])[..., 0]
+            d = torch.from_numpy(self.trees[n].query(local.numpy())[0])
+            nearer = d < best
+            best[nearer], part[nearer] = d[nearer], p
+        return part
+
+    def parts_of(self, model, rows=None) -> torch.Tensor:
+        """The part of each of `model`'s Gaussians (of `rows`) at its temporal mean, -1 static; recomputed when the
+        means change."""
+        key = (model.means.data_ptr(), model.means._version, len(model))
+        if self._cache["key"] != key:
+            g = self.index(_normalised_times(model, None))
+            self._cache["key"], self._cache["part"] = key, self.part(model.means.detach().double(), g)
+        return self._cache["part"] if rows is None else take_rows(self._cache["part"], rows)
 
 
 def use_floor_rigid_oracle() -> list[str]:
-    names, grid, rot, trans, trees = _floor_poses()
-    cache: dict = {"key": None}
-
-    def at(s: torch.Tensor) -> torch.Tensor:
-        return (s.clamp(0, 1) * (len(grid) - 1)).round().long()
-
-    def parts_of(model) -> torch.Tensor:
-        """[N] part index (0..2) of every Gaussian, -1 static; recomputed when the means change."""
-        key = (model.means.data_ptr(), model.means._version, len(model))
-        if cache["key"] != key:
-            x = model.means.detach().double()
-            part = _floor_part(x, at(_normalised_times(model, None)), names, rot, trans, trees)
-            cache["key"], cache["part"] = key, part
-        return cache["part"]
+    parts = _FloorParts()
+    rot, trans = parts.rot, parts.trans
 
     def carry(model, t, rows, native, cov3):
-        part = parts_of(model) if rows is None else take_rows(parts_of(model), rows)
-        s_i = _normalised_times(model, rows)
+        part = parts.parts_of(model, rows)
         t0, t1 = model.time_range
-        g_i, g = at(s_i), int(at(torch.tensor((t - t0) / (t1 - t0))))
+        g_i, g = parts.index(_normalised_times(model, rows)), int(parts.index(torch.tensor((t - t0) / (t1 - t0))))
         mu = model.means if rows is None else take_rows(model.means, rows)
         r_rel = torch.eye(3, dtype=torch.float64).repeat(len(part), 1, 1)
         shift = torch.zeros(len(part), 3, dtype=torch.float64)
         origin = torch.zeros(len(part), 3, dtype=torch.float64)
-        for p, n in enumerate(names):
+        for p, n in enumerate(parts.names):
             m = part == p
             r_rel[m] = rot[n][g] @ rot[n][g_i[m]].transpose(1, 2)
             origin[m], shift[m] = trans[n][g_i[m]], trans[n][g].expand(int(m.sum()), 3)
@@ -240,20 +241,10 @@ def use_floor_rigid_oracle() -> list[str]:
 def use_floor_still_oracle() -> list[str]:
     """`floor-still`: the Gaussians away from the floor scene's moving objects (at their temporal means) do not move;
     those near them keep the recipe's own (quadratic) motion."""
-    names, grid, rot, trans, trees = _floor_poses()
-    cache: dict = {"key": None}
-
-    def still_of(model) -> torch.Tensor:
-        key = (model.means.data_ptr(), model.means._version, len(model))
-        if cache["key"] != key:
-            s = _normalised_times(model, None)
-            g = (s.clamp(0, 1) * (len(grid) - 1)).round().long()
-            cache["key"] = key
-            cache["still"] = _floor_part(model.means.detach().double(), g, names, rot, trans, trees) < 0
-        return cache["still"]
+    parts = _FloorParts()
 
     def carry(model, t, rows, native, cov3):
-        still = still_of(model) if rows is None else take_rows(still_of(model), rows)
+        still = parts.parts_of(model, rows) < 0
         mu = model.means if rows is None else take_rows(model.means, rows)
         return torch.where(still[:, None], mu, native), cov3
 
@@ -268,30 +259,30 @@ def use_floor_exact_nodes() -> list[str]:
     import splatreel.train.flow_step as flow_step
     from splatreel.train.nodes import TrackedNodes
 
-    names, grid, rot, trans, trees = _floor_poses()
+    parts = _FloorParts()
+    rot, trans = parts.rot, parts.trans
     track = flow_step.track_nodes_by_motion
 
     def exact(model, times, count, seed=0):
         tracked = track(model, times, count, seed)
         if tracked is None:
             return None
-        times = np.asarray(times, dtype=np.float64)
-        share = (times - times[0]) / (times[-1] - times[0])
-        g = np.rint(share * (len(grid) - 1)).astype(np.int64)
+        times = torch.tensor(times, dtype=torch.float64)
+        g = parts.index((times - times[0]) / (times[-1] - times[0]))
         mid = int(g[tracked.middle])
         x = tracked.canonical
-        part = _floor_part(x, torch.full((len(x),), mid), names, rot, trans, trees)
+        part = parts.part(x, torch.full((len(x),), mid))
         positions = torch.empty(len(times), len(x), 3, dtype=torch.float64)
         turns = torch.eye(3, dtype=torch.float64).repeat(len(times), len(x), 1, 1)
         for k, gk in enumerate(g.tolist()):
             positions[k] = x
-            for p, n in enumerate(names):
+            for p, n in enumerate(parts.names):
                 m = part == p
                 r = rot[n][gk] @ rot[n][mid].T
                 positions[k, m] = (r @ (x[m] - trans[n][mid])[..., None])[..., 0] + trans[n][gk]
                 turns[k, m] = r
-        print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(names))]} of {len(x)} nodes on "
-              f"{', '.join(names)}", file=sys.stderr)
+        print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(parts.names))]} of {len(x)} nodes "
+              f"on {', '.join(parts.names)}", file=sys.stderr)
         return TrackedNodes(positions, quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(len(times), -1, 4),
                             tracked.middle, part < 0)
 

@@ -162,10 +162,13 @@ def upper_bound(name: str, ds, frames: int | None = None) -> float | None:
     default), with as many Gaussians per key as at its default."""
     from splatreel.errors import SplatreelError
     from splatreel.samples import build_model
-    from splatreel.samples.gaussians import DEFAULT_FRAMES, DEFAULT_GAUSSIANS
+    from splatreel.samples.gaussians import DEFAULT_FRAMES, DEFAULT_GAUSSIANS, segment_times
     from splatreel.train.evaluate import evaluate
 
-    count = None if frames is None else round(DEFAULT_GAUSSIANS * (frames + 1) / (DEFAULT_FRAMES + 1))
+    def segments(n: int) -> int:  # an object's model has its Gaussians per key-time segment
+        return len(segment_times(n)) - 1
+
+    count = None if frames is None else round(DEFAULT_GAUSSIANS * segments(frames) / segments(DEFAULT_FRAMES))
     try:
         model = build_model(name, num_gaussians=count, frames=frames)
     except SplatreelError:

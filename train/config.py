@@ -171,9 +171,6 @@ class TrainConfig:
     #: spline (`splatreel.skinned`): with one camera per time a pose keyed at every frame is fitted by one image and
     #: moves to fake its depth; keyed every few frames, each pose is held by the several cameras around it.
     node_key_every: int = 1
-    #: Weight of the bend in time of the nodes' learned poses (motion 'nodes'; `train.nodes.pose_curvature`): keyed
-    #: densely, a pose moved along the ray of the one camera of its time fakes depth and bends the track there.
-    node_curvature_weight: float = 0.0
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
     #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes

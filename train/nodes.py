@@ -295,24 +295,6 @@ def rigidity(canonical: torch.Tensor, positions: torch.Tensor, rotations: torch.
     return (pair_weights * ((moved - turned) ** 2).sum(-1)).mean() / sigma ** 2
 
 
-def pose_curvature(positions: torch.Tensor, rotations: torch.Tensor, sigma: float) -> torch.Tensor:
-    """How the nodes' key poses ``[F, M, 3]``, ``[F, M, 4]`` bend in time: the mean over inner keys and nodes of the
-    squared second difference of the positions (in node spacings `sigma`) plus that of the rotations (quaternions,
-    each key's neighbours taken on its hemisphere). Keys are taken as evenly spaced (the spline's own assumption,
-    `splatreel.skinned.catmull_rom`). With one camera per time a pose moved along its one camera's ray costs the
-    image nothing and bends the track at that key alone, which this charges; a track that turns over several keys
-    (a bounce seen by every camera around it) costs little."""
-    if len(positions) < 3:
-        return positions.sum() * 0.0
-    bend = positions[2:] - 2.0 * positions[1:-1] + positions[:-2]
-    q = quaternion.normalize(rotations)
-    mid = q[1:-1]
-    before = torch.where((q[:-2] * mid).sum(-1, keepdim=True) < 0, -q[:-2], q[:-2])
-    after = torch.where((q[2:] * mid).sum(-1, keepdim=True) < 0, -q[2:], q[2:])
-    turn = after - 2.0 * mid + before
-    return (bend ** 2).sum(-1).mean() / sigma ** 2 + (turn ** 2).sum(-1).mean()
-
-
 class Nodes:
     """The nodes of a run, learned: key times ``[F]`` (the trainer's axis), canonical positions, key poses as
     parameters with their own Adam (save the `still` ones ``[M]``, pinned: they keep their poses), and the skin of the
@@ -343,9 +325,6 @@ class Nodes:
 
     def rigidity(self) -> torch.Tensor:
         return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)
-
-    def curvature(self) -> torch.Tensor:
-        return pose_curvature(self.positions, self.rotations, self.sigma)
 
     def step(self) -> None:
         if self.still is not None:  # no gradient, so no Adam moment: a still node's pose never moves

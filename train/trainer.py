@@ -381,12 +381,10 @@ class Trainer:
     def regularisers(self, model: Gaussians4D, static: bool) -> torch.Tensor | None:
         """The step's terms on the Gaussians themselves rather than on an image, once per step (they do not depend
         on the image): motion smoothness between neighbours and the anisotropy penalty, over every Gaussian, and the
-        control nodes' rigidity and the bend of their poses in time; None when none is on."""
+        control nodes' rigidity; None when none is on."""
         cfg, terms = self.cfg, []
         if self.nodes is not None and cfg.rigidity_weight:
             terms.append(cfg.rigidity_weight * self.nodes.rigidity())
-        if self.nodes is not None and cfg.node_curvature_weight:
-            terms.append(cfg.node_curvature_weight * self.nodes.curvature())
         if cfg.smooth_weight and not static and self.nodes is None:  # nodes carry the Gaussians: no velocities
             if self._nbr is None or self.step % 100 == 0:
                 self._nbr = knn(self.params["means"].detach(), k=8)

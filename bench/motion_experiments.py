@@ -186,7 +186,8 @@ class _FloorParts:
             self.rot[n] = torch.from_numpy(r)
             self.trans[n] = torch.from_numpy(c1 - np.einsum("gij,j->gi", r, c0[0]))
             self.trees[n] = cKDTree(ref)
-        self._cache: dict = {"key": None}
+        self._key: tuple | None = None  # what `_parts` was found for: the means' storage, version and count
+        self._parts = torch.empty(0, dtype=torch.long)
 
     def index(self, s: torch.Tensor) -> torch.Tensor:
         """The pose index nearest each share `s` of the clip (clamped to it)."""
@@ -208,10 +209,10 @@ class _FloorParts:
         """The part of each of `model`'s Gaussians (of `rows`) at its temporal mean, -1 static; recomputed when the
         means change."""
         key = (model.means.data_ptr(), model.means._version, len(model))
-        if self._cache["key"] != key:
+        if self._key != key:
             g = self.index(_normalised_times(model, None))
-            self._cache["key"], self._cache["part"] = key, self.part(model.means.detach().double(), g)
-        return self._cache["part"] if rows is None else take_rows(self._cache["part"], rows)
+            self._key, self._parts = key, self.part(model.means.detach().double(), g)
+        return self._parts if rows is None else take_rows(self._parts, rows)
 
 
 def use_floor_rigid_oracle() -> list[str]:

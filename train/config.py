@@ -171,14 +171,6 @@ class TrainConfig:
     #: spline (`splatreel.skinned`): with one camera per time a pose keyed at every frame is fitted by one image and
     #: moves to fake its depth; keyed every few frames, each pose is held by the several cameras around it.
     node_key_every: int = 1
-    #: 'rigid': the moving nodes are grouped into parts whose tracked motion keeps their distances
-    #: (`train.nodes.rigid_parts`), and each part learns one rigid correction keyed every `node_part_key_every`
-    #: frames on top of its nodes' poses, at `lr_part_positions` (times the scene extent) and `lr_part_rotations`
-    #: (radians); 'off': none.
-    node_parts: str = "off"
-    node_part_key_every: int = 1
-    lr_part_positions: float = 1e-3
-    lr_part_rotations: float = 3e-3
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
     #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes

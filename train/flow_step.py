@@ -24,8 +24,7 @@ from splatreel.model import Gaussians4D
 
 from .config import TrainConfig
 from .motion import FlowTracks, flow_tracks, flow_velocities, with_velocities
-from .nodes import (TrackedNodes, middle_template, node_spacing, rigid_parts, to_canonical, track_nodes,
-                    track_nodes_by_motion)
+from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, track_nodes, track_nodes_by_motion
 from .pose_fit import fit_tracks, template_fits
 
 
@@ -88,8 +87,6 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
         tracked = track_nodes_by_motion(model, ds.frame_times, cfg.node_count, cfg.seed)
     if tracked is None:
         return FlowStep({}, 0)
-    if cfg.node_parts == "rigid":
-        tracked.parts = rigid_parts(tracked)
     sigma = node_spacing(tracked.canonical)
     fit = None
     if cfg.node_fit_steps and cfg.node_template != "off" and not by_motion:

@@ -42,7 +42,7 @@ from splatreel.covariance import (condition_on_time, covariance_4d_from_motion, 
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
 from splatreel.pointsets import farthest_point_subset, rigid_fit
-from splatreel.skinned import SkinnedGaussians, catmull_rom, key_segments, nearest_nodes, skin_weights
+from splatreel.skinned import SkinnedGaussians, nearest_nodes, skin_weights
 
 from .initialize import knn, static_time
 from .motion import FlowTracks, flow_tracks, nearest_key
@@ -87,7 +87,6 @@ class TrackedNodes:
     rotations: torch.Tensor
     middle: int
     still: torch.Tensor | None = None
-    parts: torch.Tensor | None = None
 
     @property
     def canonical(self) -> torch.Tensor:
@@ -234,42 +233,6 @@ def track_nodes_by_motion(model: Gaussians4D, times: list[float], count: int, se
     return TrackedNodes(pos, quaternion.from_rotmat(rot.reshape(-1, 3, 3)).reshape(frames, m, 4), middle, still)
 
 
-#: Rigid parts (`rigid_parts`): each moving node is linked to this many nearest moving nodes, a link holds while the
-#: pair's tracked distance stays within `PART_TOLERANCE` of the canonical one (or of a node spacing), and parts of
-#: fewer than `MIN_PART` nodes get no correction of their own.
-PART_LINKS = 8
-PART_TOLERANCE = 0.2
-MIN_PART = 8
-
-
-def rigid_parts(tracked: TrackedNodes) -> torch.Tensor:
-    """``[M]`` the rigid part of each node (-1: none): the connected components of the moving nodes' neighbour
-    links whose tracked length stays within `PART_TOLERANCE` of its canonical length at every frame."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    pos = tracked.positions.numpy()
-    moving = np.ones(pos.shape[1], bool) if tracked.still is None else ~tracked.still.numpy()
-    rows = np.nonzero(moving)[0]
-    labels = np.full(pos.shape[1], -1)
-    if len(rows) < MIN_PART:
-        return torch.from_numpy(labels)
-    c = pos[tracked.middle, rows]
-    _, j = nearest_nodes(torch.from_numpy(c), torch.from_numpy(c), PART_LINKS + 1)
-    i, j = np.repeat(np.arange(len(rows)), j.shape[1] - 1), j[:, 1:].numpy().reshape(-1)
-    length = np.linalg.norm(pos[:, rows[i]] - pos[:, rows[j]], axis=-1)  # [F, links]
-    rest = length[tracked.middle]
-    hold = np.abs(length - rest).max(0) <= PART_TOLERANCE * np.maximum(rest, node_spacing(torch.from_numpy(c)))
-    _, comp = connected_components(coo_matrix((np.ones(int(hold.sum())), (i[hold], j[hold])),
-                                              shape=(len(rows), len(rows))), directed=False)
-    sizes = np.bincount(comp)
-    big = np.nonzero(sizes >= MIN_PART)[0]
-    renumber = np.full(len(sizes), -1)
-    renumber[big] = np.arange(len(big))
-    labels[rows] = renumber[comp]
-    return torch.from_numpy(labels)
-
-
 def node_keys(frames: int, every: int) -> list[int]:
     """Indices of the frames the nodes' learned poses are keyed at: every `every`-th, and the last."""
     keys = list(range(0, frames, max(1, every)))
@@ -339,27 +302,15 @@ class Nodes:
 
     def __init__(self, key_times: torch.Tensor, canonical: torch.Tensor, positions: torch.Tensor,
                  rotations: torch.Tensor, sigma: float, lr_positions: float, lr_rotations: float, device,
-                 still: torch.Tensor | None = None, parts: torch.Tensor | None = None,
-                 part_times: torch.Tensor | None = None, lr_part_positions: float = 0.0,
-                 lr_part_rotations: float = 0.0) -> None:
+                 still: torch.Tensor | None = None) -> None:
         self.key_times = key_times.to(device, torch.float32)
         self.still = None if still is None or not bool(still.any()) else still.to(device, torch.bool)
         self.canonical = canonical.to(device, torch.float32)
         self.sigma = float(sigma)
         self.positions = torch.nn.Parameter(positions.to(device, torch.float32).contiguous())
         self.rotations = torch.nn.Parameter(rotations.to(device, torch.float32).contiguous())
-        groups = [{"params": [self.positions], "lr": lr_positions}, {"params": [self.rotations], "lr": lr_rotations}]
-        self.parts = self.part_times = self.part_shift = self.part_turn = None
-        self._dense = self._dense_leaves = None  # the step's poses and their leaf copies (`skinned`)
-        if parts is not None and int(parts.max()) >= 0 and part_times is not None:
-            count = int(parts.max()) + 1
-            self.parts = parts.to(device, torch.long)
-            self.part_times = part_times.to(device, torch.float32)
-            self.part_shift = torch.nn.Parameter(torch.zeros(len(part_times), count, 3, device=device))
-            self.part_turn = torch.nn.Parameter(torch.zeros(len(part_times), count, 3, device=device))
-            groups += [{"params": [self.part_shift], "lr": lr_part_positions},
-                       {"params": [self.part_turn], "lr": lr_part_rotations}]
-        self.optimizer = torch.optim.Adam(groups, eps=1e-15)
+        self.optimizer = torch.optim.Adam([{"params": [self.positions], "lr": lr_positions},
+                                           {"params": [self.rotations], "lr": lr_rotations}], eps=1e-15)
         d, j = nearest_nodes(self.canonical, self.canonical, RIGID_NEIGHBOURS + 1)
         self.pairs, self.pair_weights = j[:, 1:], torch.exp(-0.5 * (d[:, 1:] / self.sigma) ** 2)
         self._skin: tuple | None = None
@@ -369,47 +320,13 @@ class Nodes:
         `SKIN_EVERY` steps."""
         if self._skin is None or self._skin[0] != len(gaussians) or step - self._skin[1] >= SKIN_EVERY:
             self._skin = (len(gaussians), step, skin_weights(gaussians.means, self.canonical, self.sigma))
-        times, positions, rotations = self.poses()
-        if self.parts is not None:  # the step's images each run backward: they stop at leaf copies of the poses,
-            self._dense = (positions, rotations)  # whose gradients `step` carries back to the parameters once
-            positions, rotations = (x.detach().requires_grad_() for x in self._dense)
-            self._dense_leaves = (positions, rotations)
-        return SkinnedGaussians(gaussians, self.canonical, times, positions, rotations, self.sigma,
+        return SkinnedGaussians(gaussians, self.canonical, self.key_times, self.positions, self.rotations, self.sigma,
                                 skin=self._skin[2], with_velocities=False)
-
-    def poses(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The key times ``[F]``, positions ``[F, M, 3]`` and rotations ``[F, M, 4]`` the Gaussians are carried by:
-        the learned key poses, or with rigid parts those on the spline at the parts' keys, each moving node turned
-        about its part's centre and shifted by the part's correction there."""
-        if self.parts is None:
-            return self.key_times, self.positions, self.rotations
-        i, u = key_segments(self.key_times, self.part_times)
-        base = catmull_rom(self.positions, i, u).float()  # [Fp, M, 3]
-        qi, qj = self.rotations[i], self.rotations[i + 1]
-        qj = torch.where((qi * qj).sum(-1, keepdim=True) < 0, -qj, qj)
-        w = u.to(qi.dtype)[:, None, None]
-        q = quaternion.normalize(qi * (1 - w) + qj * w)
-        part = self.parts.clamp_min(0)
-        count = self.part_shift.shape[1]
-        with torch.no_grad():  # each part's centre at each key: the mean of its nodes
-            member = (self.parts >= 0).float()
-            total = torch.zeros(len(base), count, 3, device=base.device).index_add_(1, part, base * member[:, None])
-            n = torch.zeros(count, device=base.device).index_add_(0, part, member)
-            centre = total / n.clamp_min(1)[None, :, None]
-        turn = quaternion.normalize(torch.cat([torch.ones_like(self.part_turn[..., :1]), 0.5 * self.part_turn], -1))
-        dq, c = turn[:, part], centre[:, part]
-        moved = (quaternion.to_rotmat(dq) @ (base - c)[..., None])[..., 0] + c + self.part_shift[:, part]
-        mine = (self.parts >= 0)[None, :, None]
-        return self.part_times, torch.where(mine, moved, base), torch.where(mine, quaternion.multiply(dq, q), q)
 
     def rigidity(self) -> torch.Tensor:
         return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)
 
     def step(self) -> None:
-        if self.parts is not None and self._dense_leaves is not None:
-            grads = [leaf.grad if leaf.grad is not None else torch.zeros_like(leaf) for leaf in self._dense_leaves]
-            torch.autograd.backward(list(self._dense), grads)
-            self._dense = self._dense_leaves = None
         if self.still is not None:  # no gradient, so no Adam moment: a still node's pose never moves
             for p in (self.positions, self.rotations):
                 if p.grad is not None:
@@ -424,22 +341,12 @@ class Nodes:
         return {"key_times": self.key_times.cpu(), "canonical": self.canonical.cpu(), "sigma": self.sigma,
                 "positions": self.positions.detach().cpu(), "rotations": self.rotations.detach().cpu(),
                 "optimizer": self.optimizer.state_dict(), "skin": skin,
-                "still": None if self.still is None else self.still.cpu(),
-                "parts": None if self.parts is None else self.parts.cpu(),
-                "part_times": None if self.parts is None else self.part_times.cpu(),
-                "part_shift": None if self.parts is None else self.part_shift.detach().cpu(),
-                "part_turn": None if self.parts is None else self.part_turn.detach().cpu()}
+                "still": None if self.still is None else self.still.cpu()}
 
     @classmethod
-    def from_state(cls, state: dict, lr_positions: float, lr_rotations: float, device,
-                   lr_part_positions: float = 0.0, lr_part_rotations: float = 0.0) -> "Nodes":
+    def from_state(cls, state: dict, lr_positions: float, lr_rotations: float, device) -> "Nodes":
         nodes = cls(state["key_times"], state["canonical"], state["positions"], state["rotations"], state["sigma"],
-                    lr_positions, lr_rotations, device, state.get("still"), state.get("parts"),
-                    state.get("part_times"), lr_part_positions, lr_part_rotations)
-        if nodes.parts is not None:
-            with torch.no_grad():
-                nodes.part_shift.copy_(state["part_shift"])
-                nodes.part_turn.copy_(state["part_turn"])
+                    lr_positions, lr_rotations, device, state.get("still"))
         nodes.optimizer.load_state_dict(state["optimizer"])
         skin = state.get("skin")
         if skin:  # the skin of the interrupted run, so that the resumed one recomputes it at the same steps

@@ -8,7 +8,6 @@ is a pure function elsewhere in this package. A run writes ``OUT`` (a splatreel 
 from __future__ import annotations
 
 import os
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -207,7 +206,7 @@ class Trainer:
         self._make_optimizer(raw)
         self.optimizer.load_state_dict(st["optimizer"])
         if st.get("nodes"):
-            self.nodes = Nodes.from_state(st["nodes"], *self._node_lrs(), self.device, *self._part_lrs())
+            self.nodes = Nodes.from_state(st["nodes"], *self._node_lrs(), self.device)
         self.node_outcome = st.get("node_outcome")
         self.generator.set_state(st["generator"])
         self.step = int(st["step"])
@@ -252,13 +251,6 @@ class Trainer:
     def _node_lrs(self) -> tuple[float, float]:
         return self.cfg.lr_node_positions * self.extent, self.cfg.lr_node_rotations
 
-    def _part_keys(self) -> list[int]:
-        """The frames the rigid parts' corrections are keyed at (`TrainConfig.node_parts`)."""
-        return node_keys(len(self.ds.frame_times), self.cfg.node_part_key_every)
-
-    def _part_lrs(self) -> tuple[float, float]:
-        return self.cfg.lr_part_positions * self.extent, self.cfg.lr_part_rotations
-
     def dataset_model(self, trained: dict[str, torch.Tensor] | None = None) -> Gaussians4D | SkinnedGaussians:
         """The model on the dataset's times (what the checkpoint holds; `model` is on the trainer's own axis), from
         `trained` (default: the current parameters)."""
@@ -274,11 +266,9 @@ class Trainer:
         if self.nodes is None:
             return model
         n = self.nodes
-        _, positions, rotations = n.poses()
-        keys = torch.tensor([self.source.frame_times[k] for k in
-                             (self._node_keys() if n.parts is None else self._part_keys())], dtype=torch.float32)
+        keys = torch.tensor([self.source.frame_times[k] for k in self._node_keys()], dtype=torch.float32)
         return SkinnedGaussians(model, n.canonical.cpu(), keys,
-                                positions.detach().cpu(), rotations.detach().cpu(), n.sigma)
+                                n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:
@@ -426,13 +416,9 @@ class Trainer:
             self._nbr = None
         if step.nodes is not None:
             keys = self._node_keys()
-            times = torch.tensor(self.ds.frame_times, dtype=torch.float64)
-            self.nodes = Nodes(times[keys], step.nodes.canonical, step.nodes.positions[keys],
-                               step.nodes.rotations[keys], step.sigma, *self._node_lrs(), self.device,
-                               step.nodes.still, step.nodes.parts, times[self._part_keys()], *self._part_lrs())
-            if self.nodes.parts is not None:
-                sizes = torch.bincount(self.nodes.parts[self.nodes.parts >= 0]).tolist()
-                print(f"rigid parts: {len(sizes)}, nodes {sizes}", file=sys.stderr)
+            self.nodes = Nodes(torch.tensor(self.ds.frame_times, dtype=torch.float64)[keys], step.nodes.canonical,
+                               step.nodes.positions[keys], step.nodes.rotations[keys], step.sigma, *self._node_lrs(),
+                               self.device, step.nodes.still)
         return step.count
 
     def elapsed(self) -> float:

@@ -23,6 +23,11 @@ EXPERIMENT:
   floor-still  (oracle, `floor` sample only) the Gaussians away from the three objects (at their temporal means, as
          for `floor-rigid`) do not move, those near them keep the recipe's own motion: what a still floor alone buys.
 
+  floor-tracks  (a readout, `floor` sample only) the recipe unchanged; its control nodes' poses scored against the
+         exact motion of the part each node sits on at the middle frame, as tracked at the flow step and as learned at
+         the end of the run: mean position and rotation errors per part, and how far each part truly turned by the
+         first frame beside how far its nodes did.
+
   floor-nodes-exact  (oracle, `floor` sample only) the trainer's `--motion nodes` on the floor, its nodes' tracks
          (by the model's own motion) replaced by the exact motion of the part each node sits on at the middle frame
          (none within reach: still), then learned as usual: what better tracking could buy at most there.
@@ -291,6 +296,82 @@ def use_floor_exact_nodes() -> list[str]:
     return ["--set", "motion=nodes", "--set", "flow_motion_at=0.3", "--set", "node_template=off"]
 
 
+def _score_poses(parts: _FloorParts, times, canonical: torch.Tensor, positions: torch.Tensor,
+                 rotations: torch.Tensor, middle: int) -> str:
+    """How far node poses at every frame (``[F, M, 3]``, ``[F, M, 4]``; canonical ``[M, 3]`` at frame `middle`) are
+    from the exact motion of the part each node sits on at the middle frame: per part, the mean position error (scene
+    units) and rotation error (degrees) over the frames, and at the first frame the angle the part truly turned since
+    the middle frame beside the angle the nodes turned."""
+    times = torch.as_tensor(times, dtype=torch.float64)
+    g = parts.index((times - times[0]) / (times[-1] - times[0]))
+    mid = int(g[middle])
+    x = canonical.double()
+    part = parts.part(x, torch.full((len(x),), mid))
+    turned = quaternion.to_rotmat(quaternion.normalize(rotations.double()))
+    out = []
+    for p, n in enumerate(parts.names):
+        m = part == p
+        if not m.any():
+            continue
+        r = parts.rot[n][g] @ parts.rot[n][mid].T  # [F, 3, 3] the part's turn since the middle frame
+        exact = (r[:, None] @ (x[m] - parts.trans[n][mid])[None, :, :, None])[..., 0] + parts.trans[n][g][:, None]
+        err = (positions[:, m].double() - exact).norm(dim=-1).mean()
+        rel = r[:, None].transpose(-1, -2) @ turned[:, m]
+
+        def angle(rot: torch.Tensor) -> torch.Tensor:
+            return torch.rad2deg(torch.arccos(((rot.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)))
+        out.append(f"{n} ({int(m.sum())} nodes): position {err:.3f}, rotation {angle(rel).mean():.0f} deg, "
+                   f"turned by frame 0 {angle(r[0]):.0f} deg (nodes {angle(turned[0, m]).mean():.0f})")
+    return "; ".join(out)
+
+
+def use_floor_track_scores() -> list[str]:
+    """`floor-tracks`: the recipe as it is, its node poses scored against the floor scene's exact motion when tracked
+    (at the flow step) and when learned (at the end of the run); printed to stderr."""
+    import atexit
+
+    import splatreel.train.flow_step as flow_step
+    import splatreel.train.trainer as trainer
+    from splatreel.skinned import catmull_rom, key_segments
+
+    parts = _FloorParts()
+    track = flow_step.track_nodes_by_motion
+    last: dict = {}
+
+    def scored(model, times, count, seed=0):
+        tracked = track(model, times, count, seed)
+        if tracked is not None:
+            print("floor-tracks, tracked: " + _score_poses(parts, times, tracked.canonical, tracked.positions,
+                                                           tracked.rotations, tracked.middle), file=sys.stderr)
+        return tracked
+
+    dataset_model = trainer.Trainer.dataset_model
+
+    def keep_last(self, trained=None):
+        if self.nodes is not None:  # the learned poses on the spline at every frame
+            n = self.nodes
+            frames = torch.arange(len(self.ds.frame_times))
+            keys = torch.tensor(self._node_keys(), dtype=torch.float64)
+            i, u = key_segments(keys, frames.double())
+            qi, qj = n.rotations.detach().cpu()[i], n.rotations.detach().cpu()[i + 1]
+            qj = torch.where((qi * qj).sum(-1, keepdim=True) < 0, -qj, qj)
+            w = u[:, None, None].to(qi.dtype)
+            last.update(times=self.ds.frame_times, canonical=n.canonical.cpu(), middle=len(frames) // 2,
+                        positions=catmull_rom(n.positions.detach().cpu(), i, u), rotations=qi * (1 - w) + qj * w)
+        return dataset_model(self, trained)
+
+    def report() -> None:
+        if last:
+            print("floor-tracks, learned: " + _score_poses(parts, last["times"], last["canonical"],
+                                                           last["positions"], last["rotations"], last["middle"]),
+                  file=sys.stderr)
+
+    flow_step.track_nodes_by_motion = scored
+    trainer.Trainer.dataset_model = keep_last
+    atexit.register(report)
+    return []
+
+
 class _NativeGaussians4D(Gaussians4D):
     """A sample's exact model: the bench's upper bound, which the experiment's motion must not carry."""
     _sliced = _native_sliced
@@ -312,7 +393,8 @@ def _keep_exact_models_native() -> None:
 
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
-               "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle}
+               "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
+               "floor-tracks": use_floor_track_scores}
 
 
 def main() -> None:

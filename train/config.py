@@ -171,10 +171,6 @@ class TrainConfig:
     #: spline (`splatreel.skinned`): with one camera per time a pose keyed at every frame is fitted by one image and
     #: moves to fake its depth; keyed every few frames, each pose is held by the several cameras around it.
     node_key_every: int = 1
-    #: Motion 'nodes' tracked by the model's own motion (one camera per time): every Gaussian's temporal std-dev is
-    #: multiplied by this once the nodes carry it, so that a frame's Gaussians serve more cameras' times and a turn
-    #: must come from the nodes rather than from a relay of short-lived Gaussians (an experiment).
-    node_time_widen: float = 1.0
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
     #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes

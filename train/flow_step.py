@@ -105,8 +105,6 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
         return FlowStep({}, 0, outcome=outcome)
     key_times = torch.tensor(ds.frame_times, dtype=torch.float64)
     canonical = to_canonical(model, key_times, tracked, sigma)
-    if by_motion and cfg.node_time_widen != 1.0:
-        canonical["log_t_scales"] = canonical["log_t_scales"] + math.log(cfg.node_time_widen)
     keep = kept = None
     if one:  # the mask on the trained (float32) values, as the trainer holds them
         keep, kept = middle_template(model.t_means.detach().float(), canonical["means"].float(), key_times,

@@ -26,7 +26,8 @@ EXPERIMENT:
   floor-tracks  (a readout, `floor` sample only) the recipe unchanged; its control nodes' poses scored against the
          exact motion of the part each node sits on at the middle frame, as tracked at the flow step and as learned at
          the end of the run: mean position and rotation errors per part, and how far each part truly turned by the
-         first frame beside how far its nodes did.
+         first frame beside how far its nodes did. Joined to another experiment with '+' it scores that one's nodes:
+         `floor-nodes-exact+floor-tracks`.
 
   floor-nodes-exact  (oracle, `floor` sample only) the trainer's `--motion nodes` on the floor, its nodes' tracks
          (by the model's own motion) replaced by the exact motion of the part each node sits on at the middle frame
@@ -398,9 +399,11 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor
 
 
 def main() -> None:
-    if len(sys.argv) < 2 or sys.argv[1] not in EXPERIMENTS:
-        sys.exit(f"usage: python bench/motion_experiments.py {{{','.join(EXPERIMENTS)}}} [bench/train.py options]")
-    extra = EXPERIMENTS[sys.argv[1]]()
+    names = sys.argv[1].split("+") if len(sys.argv) > 1 else []
+    if not names or any(n not in EXPERIMENTS for n in names):
+        sys.exit(f"usage: python bench/motion_experiments.py {{{','.join(EXPERIMENTS)}}}[+floor-tracks] "
+                 "[bench/train.py options]")
+    extra = [arg for n in names for arg in EXPERIMENTS[n]()]  # in order: floor-tracks last scores what came before
     Gaussians4D._sliced = _carried_sliced
     _keep_exact_models_native()
     _split_in_space_only()

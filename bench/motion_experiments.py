@@ -297,18 +297,23 @@ def use_floor_exact_nodes() -> list[str]:
     return ["--set", "motion=nodes", "--set", "flow_motion_at=0.3", "--set", "node_template=off"]
 
 
+def _angle(rot: torch.Tensor) -> torch.Tensor:
+    """The angle in degrees of rotation matrices ``[..., 3, 3]``."""
+    return torch.rad2deg(torch.arccos(((rot.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)))
+
+
 def _score_poses(parts: _FloorParts, times, canonical: torch.Tensor, positions: torch.Tensor,
-                 rotations: torch.Tensor, middle: int) -> str:
-    """How far node poses at every frame (``[F, M, 3]``, ``[F, M, 4]``; canonical ``[M, 3]`` at frame `middle`) are
-    from the exact motion of the part each node sits on at the middle frame: per part, the mean position error (scene
-    units) and rotation error (degrees) over the frames, and at the first frame the angle the part truly turned since
-    the middle frame beside the angle the nodes turned."""
+                 turned: torch.Tensor, middle: int) -> str:
+    """How far node poses at every frame (positions ``[F, M, 3]``, rotation matrices ``[F, M, 3, 3]``; canonical
+    ``[M, 3]`` at frame `middle`) are from the exact motion of the part each node sits on at the middle frame: per
+    part, the mean position error (scene units) and rotation error (degrees) over the frames, and at the first frame
+    the angle the part truly turned since the middle frame beside the angle the nodes turned."""
     times = torch.as_tensor(times, dtype=torch.float64)
     g = parts.index((times - times[0]) / (times[-1] - times[0]))
     mid = int(g[middle])
     x = canonical.double()
     part = parts.part(x, torch.full((len(x),), mid))
-    turned = quaternion.to_rotmat(quaternion.normalize(rotations.double()))
+    turned = turned.double()
     out = []
     for p, n in enumerate(parts.names):
         m = part == p
@@ -318,11 +323,8 @@ def _score_poses(parts: _FloorParts, times, canonical: torch.Tensor, positions: 
         exact = (r[:, None] @ (x[m] - parts.trans[n][mid])[None, :, :, None])[..., 0] + parts.trans[n][g][:, None]
         err = (positions[:, m].double() - exact).norm(dim=-1).mean()
         rel = r[:, None].transpose(-1, -2) @ turned[:, m]
-
-        def angle(rot: torch.Tensor) -> torch.Tensor:
-            return torch.rad2deg(torch.arccos(((rot.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2).clamp(-1, 1)))
-        out.append(f"{n} ({int(m.sum())} nodes): position {err:.3f}, rotation {angle(rel).mean():.0f} deg, "
-                   f"turned by frame 0 {angle(r[0]):.0f} deg (nodes {angle(turned[0, m]).mean():.0f})")
+        out.append(f"{n} ({int(m.sum())} nodes): position {err:.3f}, rotation {_angle(rel).mean():.0f} deg, "
+                   f"turned by frame 0 {_angle(r[0]):.0f} deg (nodes {_angle(turned[0, m]).mean():.0f})")
     return "; ".join(out)
 
 
@@ -333,7 +335,7 @@ def use_floor_track_scores() -> list[str]:
 
     import splatreel.train.flow_step as flow_step
     import splatreel.train.trainer as trainer
-    from splatreel.skinned import catmull_rom, key_segments
+    from splatreel.skinned import catmull_rom, key_segments, nlerp
 
     parts = _FloorParts()
     track = flow_step.track_nodes_by_motion
@@ -342,8 +344,9 @@ def use_floor_track_scores() -> list[str]:
     def scored(model, times, count, seed=0):
         tracked = track(model, times, count, seed)
         if tracked is not None:
-            print("floor-tracks, tracked: " + _score_poses(parts, times, tracked.canonical, tracked.positions,
-                                                           tracked.rotations, tracked.middle), file=sys.stderr)
+            turned = quaternion.to_rotmat(quaternion.normalize(tracked.rotations))
+            print("floor-tracks, tracked: " + _score_poses(parts, times, tracked.canonical, tracked.positions, turned,
+                                                           tracked.middle), file=sys.stderr)
         return tracked
 
     dataset_model = trainer.Trainer.dataset_model
@@ -354,17 +357,15 @@ def use_floor_track_scores() -> list[str]:
             frames = torch.arange(len(self.ds.frame_times))
             keys = torch.tensor(self._node_keys(), dtype=torch.float64)
             i, u = key_segments(keys, frames.double())
-            qi, qj = n.rotations.detach().cpu()[i], n.rotations.detach().cpu()[i + 1]
-            qj = torch.where((qi * qj).sum(-1, keepdim=True) < 0, -qj, qj)
-            w = u[:, None, None].to(qi.dtype)
+            q = n.rotations.detach().cpu()
             last.update(times=self.ds.frame_times, canonical=n.canonical.cpu(), middle=len(frames) // 2,
-                        positions=catmull_rom(n.positions.detach().cpu(), i, u), rotations=qi * (1 - w) + qj * w)
+                        positions=catmull_rom(n.positions.detach().cpu(), i, u), turned=nlerp(q[i], q[i + 1], u))
         return dataset_model(self, trained)
 
     def report() -> None:
         if last:
             print("floor-tracks, learned: " + _score_poses(parts, last["times"], last["canonical"],
-                                                           last["positions"], last["rotations"], last["middle"]),
+                                                           last["positions"], last["turned"], last["middle"]),
                   file=sys.stderr)
 
     flow_step.track_nodes_by_motion = scored

@@ -15,7 +15,6 @@ What it sets depends on ``motion`` (`train.config.MOTIONS`):
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 
 import torch
@@ -115,41 +114,4 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
             if auto:
                 return FlowStep({}, 0, outcome=outcome)
             keep = kept = None
-    if by_motion and cfg.node_template == "on":  # experiment: one set for what moves, each frame's own elsewhere
-        keep, kept = _moving_template(model, canonical, tracked, sigma, ds.frame_times, time_range)
-        outcome = {**outcome, "template": "moving"}
     return FlowStep(canonical, len(tracked.canonical), tracked, sigma, keep, kept, outcome)
-
-
-#: Motion 'nodes' tracked by the model's own motion with ``node_template`` 'on' (an experiment): the Gaussians on
-#: moving nodes whose temporal mean lies within this many frames of the middle frame draw the moving parts at every
-#: time; those of other times are dropped.
-MOVING_TEMPLATE_FRAMES = 6
-
-
-def _moving_template(model: Gaussians4D, canonical: dict[str, torch.Tensor], tracked: TrackedNodes, sigma: float,
-                     times: list[float], time_range: tuple[float, float]) -> tuple[torch.Tensor, dict]:
-    """The mask of the Gaussians that stay and the kept ones' temporal means and log std-devs: on a moving node
-    (nearest, within `TEMPLATE_REACH` spacings) only those within `MOVING_TEMPLATE_FRAMES` of the middle frame stay,
-    static in time; every other Gaussian stays as it is."""
-    from splatreel.skinned import nearest_nodes
-
-    from .initialize import static_time
-    from .nodes import TEMPLATE_REACH
-
-    means = canonical["means"].float()
-    moving = torch.ones(len(tracked.canonical), dtype=torch.bool) if tracked.still is None else ~tracked.still
-    d, j = nearest_nodes(tracked.canonical.float(), means, 1)
-    on_moving = moving[j[:, 0]] & (d[:, 0] <= TEMPLATE_REACH * sigma)
-    t = model.t_means.detach().float()
-    step = (times[-1] - times[0]) / max(len(times) - 1, 1)
-    near_middle = (t - times[tracked.middle]).abs() <= MOVING_TEMPLATE_FRAMES * step
-    keep = ~on_moving | near_middle
-    static = on_moving[keep]
-    t_mean, log_t = static_time(time_range)
-    kept = {"t_means": torch.where(static, torch.full_like(t[keep], t_mean), t[keep]),
-            "log_t_scales": torch.where(static, torch.full_like(t[keep], log_t),
-                                        canonical["log_t_scales"].float()[keep])}
-    print(f"moving template: {int((on_moving & near_middle).sum())} Gaussians for what moves at every time, "
-          f"{int((on_moving & ~near_middle).sum())} dropped, {int((~on_moving).sum())} as they were", file=sys.stderr)
-    return keep, kept

@@ -211,6 +211,26 @@ class _FloorParts:
             best[nearer], part[nearer] = d[nearer], p
         return part
 
+    def node_motion(self, times, canonical: torch.Tensor, middle: int
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Nodes at `canonical` ``[M, 3]`` (their places at frame `middle` of the frames at `times`) carried by the
+        exact motion of the part each sits on there: the part of each ``[M]`` (-1: none, the node stays), positions
+        ``[F, M, 3]`` and turns since the middle frame ``[F, M, 3, 3]`` (float64)."""
+        times = torch.as_tensor(times, dtype=torch.float64)
+        g = self.index((times - times[0]) / (times[-1] - times[0]))
+        mid = int(g[middle])
+        x = canonical.double()
+        part = self.part(x, torch.full((len(x),), mid))
+        positions = x.expand(len(times), -1, -1).clone()
+        turns = torch.eye(3, dtype=torch.float64).repeat(len(times), len(x), 1, 1)
+        for p, n in enumerate(self.names):
+            m = part == p
+            r = self.rot[n][g] @ self.rot[n][mid].T  # [F, 3, 3] the part's turn since the middle frame
+            positions[:, m] = (r[:, None] @ (x[m] - self.trans[n][mid])[None, :, :, None])[..., 0] \
+                + self.trans[n][g][:, None]
+            turns[:, m] = r[:, None]
+        return part, positions, turns
+
     def parts_of(self, model, rows=None) -> torch.Tensor:
         """The part of each of `model`'s Gaussians (of `rows`) at its temporal mean, -1 static; recomputed when the
         means change."""
@@ -267,28 +287,14 @@ def use_floor_exact_nodes() -> list[str]:
     from splatreel.train.nodes import TrackedNodes
 
     parts = _FloorParts()
-    rot, trans = parts.rot, parts.trans
     track = flow_step.track_nodes_by_motion
 
     def exact(model, times, count, seed=0):
         tracked = track(model, times, count, seed)
         if tracked is None:
             return None
-        times = torch.tensor(times, dtype=torch.float64)
-        g = parts.index((times - times[0]) / (times[-1] - times[0]))
-        mid = int(g[tracked.middle])
-        x = tracked.canonical
-        part = parts.part(x, torch.full((len(x),), mid))
-        positions = torch.empty(len(times), len(x), 3, dtype=torch.float64)
-        turns = torch.eye(3, dtype=torch.float64).repeat(len(times), len(x), 1, 1)
-        for k, gk in enumerate(g.tolist()):
-            positions[k] = x
-            for p, n in enumerate(parts.names):
-                m = part == p
-                r = rot[n][gk] @ rot[n][mid].T
-                positions[k, m] = (r @ (x[m] - trans[n][mid])[..., None])[..., 0] + trans[n][gk]
-                turns[k, m] = r
-        print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(parts.names))]} of {len(x)} nodes "
+        part, positions, turns = parts.node_motion(times, tracked.canonical, tracked.middle)
+        print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(parts.names))]} of {len(part)} nodes "
               f"on {', '.join(parts.names)}", file=sys.stderr)
         return TrackedNodes(positions, quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(len(times), -1, 4),
                             tracked.middle, part < 0)
@@ -308,23 +314,17 @@ def _score_poses(parts: _FloorParts, times, canonical: torch.Tensor, positions: 
     ``[M, 3]`` at frame `middle`) are from the exact motion of the part each node sits on at the middle frame: per
     part, the mean position error (scene units) and rotation error (degrees) over the frames, and at the first frame
     the angle the part truly turned since the middle frame beside the angle the nodes turned."""
-    times = torch.as_tensor(times, dtype=torch.float64)
-    g = parts.index((times - times[0]) / (times[-1] - times[0]))
-    mid = int(g[middle])
-    x = canonical.double()
-    part = parts.part(x, torch.full((len(x),), mid))
+    part, exact, turns = parts.node_motion(times, canonical, middle)
     turned = turned.double()
     out = []
     for p, n in enumerate(parts.names):
         m = part == p
         if not m.any():
             continue
-        r = parts.rot[n][g] @ parts.rot[n][mid].T  # [F, 3, 3] the part's turn since the middle frame
-        exact = (r[:, None] @ (x[m] - parts.trans[n][mid])[None, :, :, None])[..., 0] + parts.trans[n][g][:, None]
-        err = (positions[:, m].double() - exact).norm(dim=-1).mean()
-        rel = r[:, None].transpose(-1, -2) @ turned[:, m]
+        err = (positions[:, m].double() - exact[:, m]).norm(dim=-1).mean()
+        rel = turns[:, m].transpose(-1, -2) @ turned[:, m]
         out.append(f"{n} ({int(m.sum())} nodes): position {err:.3f}, rotation {_angle(rel).mean():.0f} deg, "
-                   f"turned by frame 0 {_angle(r[0]):.0f} deg (nodes {_angle(turned[0, m]).mean():.0f})")
+                   f"turned by frame 0 {_angle(turns[0, m][0]):.0f} deg (nodes {_angle(turned[0, m]).mean():.0f})")
     return "; ".join(out)
 
 
@@ -335,7 +335,7 @@ def use_floor_track_scores() -> list[str]:
 
     import splatreel.train.flow_step as flow_step
     import splatreel.train.trainer as trainer
-    from splatreel.skinned import catmull_rom, key_segments, nlerp
+    from splatreel.skinned import node_poses
 
     parts = _FloorParts()
     track = flow_step.track_nodes_by_motion
@@ -354,12 +354,10 @@ def use_floor_track_scores() -> list[str]:
     def keep_last(self, trained=None):
         if self.nodes is not None:  # the learned poses on the spline at every frame
             n = self.nodes
-            frames = torch.arange(len(self.ds.frame_times))
-            keys = torch.tensor(self._node_keys(), dtype=torch.float64)
-            i, u = key_segments(keys, frames.double())
-            q = n.rotations.detach().cpu()
-            last.update(times=self.ds.frame_times, canonical=n.canonical.cpu(), middle=len(frames) // 2,
-                        positions=catmull_rom(n.positions.detach().cpu(), i, u), turned=nlerp(q[i], q[i + 1], u))
+            poses = [node_poses(n.key_times.cpu(), n.positions.detach().cpu(), n.rotations.detach().cpu(), t)
+                     for t in self.ds.frame_times]
+            last.update(times=self.ds.frame_times, canonical=n.canonical.cpu(), middle=len(poses) // 2,
+                        positions=torch.stack([p for p, _ in poses]), turned=torch.stack([r for _, r in poses]))
         return dataset_model(self, trained)
 
     def report() -> None:
@@ -400,6 +398,9 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor
 
 
 def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] in ("-h", "--help"):
+        print(__doc__)
+        return
     names = sys.argv[1].split("+") if len(sys.argv) > 1 else []
     if not names or any(n not in EXPERIMENTS for n in names):
         sys.exit(f"usage: python bench/motion_experiments.py {{{','.join(EXPERIMENTS)}}}[+floor-tracks] "

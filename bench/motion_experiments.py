@@ -32,6 +32,7 @@ EXPERIMENT:
   floor-nodes-exact  (oracle, `floor` sample only) the trainer's `--motion nodes` on the floor, its nodes' tracks
          (by the model's own motion) replaced by the exact motion of the part each node sits on at the middle frame
          (none within reach: still), then learned as usual: what better tracking could buy at most there.
+         `floor-nodes-exact-ball`, `floor-nodes-exact-box`: the nodes on that part alone, the others as tracked.
 
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
@@ -43,6 +44,7 @@ package imports it.
 
 from __future__ import annotations
 
+import functools
 import math
 import runpy
 import sys
@@ -279,10 +281,11 @@ def use_floor_still_oracle() -> list[str]:
     return []
 
 
-def use_floor_exact_nodes() -> list[str]:
+def use_floor_exact_nodes(only: str | None = None) -> list[str]:
     """`--motion nodes` on the floor, its node tracks (by the model's own motion) replaced by the scene's exact
     motion: the same nodes, each posed at every frame by the rigid motion of the part it sits on at the middle frame
-    (none within reach: still, and pinned), then learned as usual. What better tracking could buy at most in this regime."""
+    (none within reach: still, and pinned), then learned as usual. What better tracking could buy at most in this regime.
+    `only`: the nodes on that part alone, the others as tracked."""
     import splatreel.train.flow_step as flow_step
     from splatreel.train.nodes import TrackedNodes
 
@@ -295,9 +298,16 @@ def use_floor_exact_nodes() -> list[str]:
             return None
         part, positions, turns = parts.node_motion(times, tracked.canonical, tracked.middle)
         print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(parts.names))]} of {len(part)} nodes "
-              f"on {', '.join(parts.names)}", file=sys.stderr)
-        return TrackedNodes(positions, quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(len(times), -1, 4),
-                            tracked.middle, part < 0)
+              f"on {', '.join(parts.names)}{'' if only is None else ', exact on ' + only + ' only'}", file=sys.stderr)
+        rotations = quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(len(times), -1, 4)
+        if only is None:
+            return TrackedNodes(positions, rotations, tracked.middle, part < 0)
+        mine = part == parts.names.index(only)
+        still = tracked.still.clone() if tracked.still is not None else torch.zeros(len(part), dtype=torch.bool)
+        still[mine] = False
+        return TrackedNodes(torch.where(mine[:, None], positions, tracked.positions),
+                            torch.where(mine[:, None], rotations.to(tracked.rotations), tracked.rotations),
+                            tracked.middle, still)
 
     flow_step.track_nodes_by_motion = exact
     return ["--set", "motion=nodes", "--set", "flow_motion_at=0.3", "--set", "node_template=off"]
@@ -330,7 +340,8 @@ def _score_poses(parts: _FloorParts, times, canonical: torch.Tensor, positions: 
 
 def use_floor_track_scores() -> list[str]:
     """`floor-tracks`: the recipe as it is, its node poses scored against the floor scene's exact motion when tracked
-    (at the flow step) and when learned (at the end of the run); printed to stderr."""
+    (at the flow step), when the parts' turns are fitted (`part_turns` 'on') and when learned (at the end of the
+    run); printed to stderr."""
     import atexit
 
     import splatreel.train.flow_step as flow_step
@@ -348,6 +359,15 @@ def use_floor_track_scores() -> list[str]:
             print("floor-tracks, tracked: " + _score_poses(parts, times, tracked.canonical, tracked.positions, turned,
                                                            tracked.middle), file=sys.stderr)
         return tracked
+
+    fit_turns = flow_step.fit_part_turns
+
+    def fitted(model, ds, background, tracked, part_of, seed=0):
+        out, taken = fit_turns(model, ds, background, tracked, part_of, seed)
+        turned = quaternion.to_rotmat(quaternion.normalize(out.rotations))
+        print(f"floor-tracks, parts' turns fitted (taken {taken}): " + _score_poses(
+            parts, ds.frame_times, out.canonical, out.positions, turned, out.middle), file=sys.stderr)
+        return out, taken
 
     dataset_model = trainer.Trainer.dataset_model
 
@@ -367,6 +387,7 @@ def use_floor_track_scores() -> list[str]:
                   file=sys.stderr)
 
     flow_step.track_nodes_by_motion = scored
+    flow_step.fit_part_turns = fitted
     trainer.Trainer.dataset_model = keep_last
     atexit.register(report)
     return []
@@ -394,7 +415,8 @@ def _keep_exact_models_native() -> None:
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
-               "floor-tracks": use_floor_track_scores}
+               "floor-tracks": use_floor_track_scores,
+               **{f"floor-nodes-exact-{n}": functools.partial(use_floor_exact_nodes, n) for n in ("ball", "box")}}
 
 
 def main() -> None:

@@ -340,8 +340,7 @@ def _score_poses(parts: _FloorParts, times, canonical: torch.Tensor, positions: 
 
 def use_floor_track_scores() -> list[str]:
     """`floor-tracks`: the recipe as it is, its node poses scored against the floor scene's exact motion when tracked
-    (at the flow step), when the parts' turns are fitted (`part_turns` 'on') and when learned (at the end of the
-    run); printed to stderr."""
+    (at the flow step) and when learned (at the end of the run); printed to stderr."""
     import atexit
 
     import splatreel.train.flow_step as flow_step
@@ -359,15 +358,6 @@ def use_floor_track_scores() -> list[str]:
             print("floor-tracks, tracked: " + _score_poses(parts, times, tracked.canonical, tracked.positions, turned,
                                                            tracked.middle), file=sys.stderr)
         return tracked
-
-    fit_turns = flow_step.fit_part_turns
-
-    def fitted(model, ds, background, tracked, part_of, seed=0):
-        out, taken = fit_turns(model, ds, background, tracked, part_of, seed)
-        turned = quaternion.to_rotmat(quaternion.normalize(out.rotations))
-        print(f"floor-tracks, parts' turns fitted (taken {taken}): " + _score_poses(
-            parts, ds.frame_times, out.canonical, out.positions, turned, out.middle), file=sys.stderr)
-        return out, taken
 
     dataset_model = trainer.Trainer.dataset_model
 
@@ -387,7 +377,6 @@ def use_floor_track_scores() -> list[str]:
                   file=sys.stderr)
 
     flow_step.track_nodes_by_motion = scored
-    flow_step.fit_part_turns = fitted
     trainer.Trainer.dataset_model = keep_last
     atexit.register(report)
     return []

@@ -180,9 +180,6 @@ class TrainConfig:
     #: for the whole clip ('on'); never ('off'); or when the nodes carry them to every key frame and they draw it
     #: within `train.pose_fit.TEMPLATE_FIT` times their error at the middle frame ('auto').
     node_template: str = "auto"
-    #: Motion 'nodes' with one camera per time (nodes tracked by the model's own motion): 'on' fits each rigid
-    #: part's turn to the images (`train.part_turns`); 'off': the tracked turns.
-    part_turns: str = "off"
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

@@ -25,7 +25,6 @@ from splatreel.model import Gaussians4D
 from .config import TrainConfig
 from .motion import FlowTracks, flow_tracks, flow_velocities, with_velocities
 from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, track_nodes, track_nodes_by_motion
-from .part_turns import fit_part_turns, rigid_parts
 from .pose_fit import fit_tracks, template_fits
 
 
@@ -88,9 +87,6 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
         tracked = track_nodes_by_motion(model, ds.frame_times, cfg.node_count, cfg.seed)
     if tracked is None:
         return FlowStep({}, 0)
-    turned = None
-    if by_motion and cfg.part_turns == "on":
-        tracked, turned = fit_part_turns(model, ds, background, tracked, rigid_parts(tracked), cfg.seed)
     sigma = node_spacing(tracked.canonical)
     fit = None
     if cfg.node_fit_steps and cfg.node_template != "off" and not by_motion:
@@ -103,8 +99,6 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
                else None}
     if by_motion:
         outcome["tracked_by"] = "motion"
-    if turned is not None:
-        outcome["part_turns"] = turned
     if one and fit is not None:
         tracked = fit.nodes
     if auto and not one:

@@ -32,7 +32,8 @@ EXPERIMENT:
   floor-nodes-exact  (oracle, `floor` sample only) the trainer's `--motion nodes` on the floor, its nodes' tracks
          (by the model's own motion) replaced by the exact motion of the part each node sits on at the middle frame
          (none within reach: still), then learned as usual: what better tracking could buy at most there.
-         `floor-nodes-exact-ball`, `floor-nodes-exact-box`: the nodes on that part alone, the others as tracked.
+         `floor-nodes-exact-ball`, `-box`, `-pendulum`, `-box-pendulum`: the nodes on those parts alone, the others
+         as tracked.
 
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
@@ -281,11 +282,11 @@ def use_floor_still_oracle() -> list[str]:
     return []
 
 
-def use_floor_exact_nodes(only: str | None = None) -> list[str]:
+def use_floor_exact_nodes(only: tuple[str, ...] | None = None) -> list[str]:
     """`--motion nodes` on the floor, its node tracks (by the model's own motion) replaced by the scene's exact
     motion: the same nodes, each posed at every frame by the rigid motion of the part it sits on at the middle frame
-    (none within reach: still, and pinned), then learned as usual. What better tracking could buy at most in this regime.
-    `only`: the nodes on that part alone, the others as tracked."""
+    (none within reach: still, and pinned), then learned as usual. What better tracking could buy at most in this
+    regime. `only`: the nodes on those parts alone, the others as tracked."""
     import splatreel.train.flow_step as flow_step
     from splatreel.train.nodes import TrackedNodes
 
@@ -298,11 +299,12 @@ def use_floor_exact_nodes(only: str | None = None) -> list[str]:
             return None
         part, positions, turns = parts.node_motion(times, tracked.canonical, tracked.middle)
         print(f"floor-nodes-exact: {[int((part == p).sum()) for p in range(len(parts.names))]} of {len(part)} nodes "
-              f"on {', '.join(parts.names)}{'' if only is None else ', exact on ' + only + ' only'}", file=sys.stderr)
+              f"on {', '.join(parts.names)}{'' if only is None else ', exact on ' + ' and '.join(only) + ' only'}",
+              file=sys.stderr)
         rotations = quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(len(times), -1, 4)
         if only is None:
             return TrackedNodes(positions, rotations, tracked.middle, part < 0)
-        mine = part == parts.names.index(only)
+        mine = torch.isin(part, torch.tensor([parts.names.index(n) for n in only]))
         still = tracked.still.clone() if tracked.still is not None else torch.zeros(len(part), dtype=torch.bool)
         still[mine] = False
         return TrackedNodes(torch.where(mine[:, None], positions, tracked.positions),
@@ -405,7 +407,8 @@ def _keep_exact_models_native() -> None:
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
                "floor-tracks": use_floor_track_scores,
-               **{f"floor-nodes-exact-{n}": functools.partial(use_floor_exact_nodes, n) for n in ("ball", "box")}}
+               **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
+                  for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))}}
 
 
 def main() -> None:

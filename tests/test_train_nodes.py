@@ -250,12 +250,12 @@ def small_spinner(tmp_path_factory):
 def test_a_run_with_nodes_writes_a_skinned_checkpoint_and_resumes_exactly(small_spinner, tmp_path, template):
     ds = load_dataset(small_spinner)
     cfg, _ = auto_recipe(read_traits(ds))
-    cfg = dataclasses.replace(cfg.scaled(20), minutes=None, num_gaussians=800, seed=3, motion="nodes", node_count=24,
+    cfg = dataclasses.replace(cfg.scaled(14), minutes=None, num_gaussians=800, seed=3, motion="nodes", node_count=24,
                               node_template=template)
     a = Trainer(ds, cfg, tmp_path / "a.safetensors", progress=False)
     a.run()
     assert a.nodes is not None and a.node_outcome["template"] == (template == "on")  # tracked at the flow step
-    Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=int(cfg.flow_motion_at * 20) + 2)
+    Trainer(ds, cfg, tmp_path / "b.safetensors", progress=False).run(stop_at=int(cfg.flow_motion_at * 14) + 2)
     Trainer(ds, cfg, tmp_path / "b.safetensors", resume=True, progress=False).run()
     ma, mb = load_checkpoint(tmp_path / "a.safetensors").model, load_checkpoint(tmp_path / "b.safetensors").model
     assert ma.kind == "skinned" and ma.num_nodes == 24 and ma.num_keys == 4 and ma.gaussians.accelerations is None

@@ -35,9 +35,14 @@ EXPERIMENT:
          `floor-nodes-exact-ball`, `-box`, `-pendulum`, `-box-pendulum`: the nodes on those parts alone, the others
          as tracked.
 
+  node-residual  the trainer's control nodes (`--motion nodes`, or motion `auto` where it uses them) carry each
+         Gaussian from its native slice's mean at t (its canonical mean moved along its 4D shape's tilt in time)
+         instead of from its canonical mean: each Gaussian may learn a linear motion of its own on top of its
+         nodes' (none at the switch to nodes, where the tilt is taken out; learned from there), for parts the nodes
+         do not follow.
+
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
-its last version is in the history (commit e78221a) and its results in docs/benchmarks.md. `node-residual` (commit
-db86870) is now `--node-residual-motion`, the recipe's default for one camera per time.
+its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
 
 It replaces the native conditional mean (and its quadratic term) by the carried one; the temporal opacity, the
 colour and the conditional covariance's shape stay native. The patches are this script's alone: nothing in the
@@ -46,6 +51,7 @@ package imports it.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import runpy
@@ -385,6 +391,33 @@ def use_floor_track_scores() -> list[str]:
     return []
 
 
+def use_node_residual_motion() -> list[str]:
+    """`node-residual`: skinned Gaussians carried by their nodes from their native slice's mean at t (their canonical
+    mean moved along their 4D shape's tilt in time) instead of from their canonical mean, so each may learn a linear
+    motion of its own on top of its nodes' (the tilt is zero at the switch to nodes and learned from there)."""
+    from splatreel import skinned
+    from splatreel.carrying import fused_carry
+    from splatreel.model import take_rows
+
+    def slice_with_residual(self, t, sh_degree_t=None, rows=None):
+        native = self.gaussians.slice(t, sh_degree_t, rows)
+        if rows is not None and rows.dtype == torch.bool:
+            rows = rows.nonzero()[:, 0]
+        nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
+        means = native.means
+        weights, canonical = weights.to(means), self.node_canonical.to(means)
+        poses = [x.to(means) for x in self.poses(t)]
+        if means.device.type == "cpu" and means.dtype == torch.float32 and not canonical.requires_grad:
+            moved, cov = fused_carry(means, native.covariances, torch.arange(len(means)), nodes, weights, canonical,
+                                     *poses)
+        else:
+            moved, cov = skinned.carry(means, native.covariances, nodes, weights, canonical, *poses)
+        return dataclasses.replace(native, means=moved, covariances=cov, velocities=None)
+
+    skinned.SkinnedGaussians.slice = slice_with_residual
+    return []
+
+
 class _NativeGaussians4D(Gaussians4D):
     """A sample's exact model: the bench's upper bound, which the experiment's motion must not carry."""
     _sliced = _native_sliced
@@ -407,7 +440,7 @@ def _keep_exact_models_native() -> None:
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
-               "floor-tracks": use_floor_track_scores,
+               "floor-tracks": use_floor_track_scores, "node-residual": use_node_residual_motion,
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))}}
 

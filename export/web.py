@@ -21,9 +21,8 @@ data file):
   accelerations, which do not move them), each one's skin (4 nodes and weights) and the control nodes' keys. Per
   displayed time the page computes the M node poses as `splatreel.skinned.node_poses` does (``skinning.js``:
   Catmull-Rom positions, normalised lerp of the rotations, the end poses held outside the keys) into a small float
-  texture, and the vertex shader carries each native Gaussian's canonical mean (with `residual_motion`, its mean
-  at t on its line) and conditional covariance by its nodes (linear blend skinning, SC-GS, Huang et al. CVPR 2024:
-  ``shaders/splat_skin.glsl``, the desktop one); such a model with accelerations is refused.
+  texture, and the vertex shader carries each native Gaussian's canonical mean and conditional covariance by its
+  nodes (linear blend skinning, SC-GS, Huang et al. CVPR 2024: ``shaders/splat_skin.glsl``, the desktop one).
 
 Projection as the trainer's rasterizer: EWA Jacobian at the clamped x/z, y/z, + EPS2D px^2, near-plane cull, alpha
 clamped at MAX_ALPHA and cut where it falls below ALPHA_THRESHOLD, inside the reference's tile rectangle. The page
@@ -118,13 +117,9 @@ def _geometry(model) -> tuple[np.ndarray, np.ndarray, dict]:
     if model.kind == "skinned":  # the canonical native Gaussians and their skin; the node keys go to _node_arrays
         from splatreel.skinned import padded_skin
 
-        accelerations = model.gaussians.accelerations
-        if model.residual_motion and accelerations is not None and bool((accelerations != 0).any()):
-            raise ExportError("export web plays a skinned model's residual motion on straight lines: this one has "
-                              "accelerations")
         geom, sh, fields = _native_geometry(model.gaussians, skin=padded_skin(model.skin))
         return geom, sh, {**fields, "kind": "skinned", "node_count": model.num_nodes,
-                          "node_times": model.node_times.tolist(), "residual_motion": bool(model.residual_motion)}
+                          "node_times": model.node_times.tolist()}
     if model.kind != "keyframed":
         raise ExportError(f"export web plays native 4D, keyframed and skinned models, not a {model.kind} model")
     with torch.no_grad():

@@ -12,8 +12,8 @@
 // ceil(RADIUS_SIGMAS sqrt(lambda_max)) (EIGEN_FLOOR under the discriminant), intersected with the alpha >=
 // ALPHA_THRESHOLD ellipse, optionally capped (splatreel.viewer.sorting.Footprint). A skinned model (SKINNED 1,
 // splatreel.skinned.SkinnedGaussians.slice): the Gaussian's canonical mean (the conditional mean at mu_t, which the
-// native velocity does not move; with the model's residual motion, u_skin_residual 1, its native mean at t) and
-// conditional covariance carried by its 4 nodes (splat_skin.glsl), the temporal opacity and the colour native.
+// native velocity does not move) and conditional covariance carried by its 4 nodes (splat_skin.glsl), the temporal
+// opacity and the colour native.
 //
 // Compile-time defines (splatreel.viewer.renderer): SH_DEGREE, SH_DEGREE_T, SH_TEXELS (RGBA texels per Gaussian),
 // SH_TEX_WIDTH (texels per row of the SH texture), TILE_SIZE, SKINNED (0 or 1). Rendering constants come from
@@ -30,7 +30,6 @@ in vec4 a_cov_b;    // c12 c22, opacity, speed |d mean / dt|
 in vec4 a_skin_nodes;    // the Gaussian's 4 nodes (indices into u_nodes' rows)
 in vec4 a_skin_weights;  // their blend weights
 uniform float u_skin_step;  // 2 h: the time between pose sets 1 (t - h) and 2 (t + h) of u_nodes
-uniform float u_skin_residual;  // 1: the model's residual motion, its nodes carry the native mean at t; 0: canonical
 #include "splat_skin.glsl"
 #endif
 
@@ -137,13 +136,11 @@ void main() {
     float factor = u_smooth_fade ? marginal * smoothstep(TEMPORAL_CULL, 2.0 * TEMPORAL_CULL, marginal) : marginal;
     float opacity = a_cov_b.z * factor;
     if (!(opacity >= ALPHA_THRESHOLD)) { cull(); return; }
-    vec3 drift = a_motion.xyz + 0.5 * a_accel.xyz * dt;  // the native mean's travel per unit time since mu_t
 #if SKINNED
     mat3 blend;
-    vec3 own = a_mean_t.xyz + u_skin_residual * drift * dt;  // the native mean at t with residual motion
-    vec3 mean = skin_carry(own, a_skin_nodes, a_skin_weights, 0, blend);
+    vec3 mean = skin_carry(a_mean_t.xyz, a_skin_nodes, a_skin_weights, 0, blend);
 #else
-    vec3 mean = a_mean_t.xyz + drift * dt;  // splatreel.model: mu + v dt + a dt^2/2
+    vec3 mean = a_mean_t.xyz + (a_motion.xyz + 0.5 * a_accel.xyz * dt) * dt;  // splatreel.model: mu + v dt + a dt^2/2
 #endif
 
     // --- EWA projection (splat_footprint.glsl) ------------------------------------------------------------------
@@ -179,9 +176,8 @@ void main() {
     float speed = 0.0;
     if (u_value == 2) {
         mat3 unused;
-        vec3 half_step = u_skin_residual * 0.5 * u_skin_step * (a_motion.xyz + a_accel.xyz * dt);
-        speed = length(skin_carry(own + half_step, a_skin_nodes, a_skin_weights, 2, unused)
-                       - skin_carry(own - half_step, a_skin_nodes, a_skin_weights, 1, unused)) / u_skin_step;
+        speed = length(skin_carry(a_mean_t.xyz, a_skin_nodes, a_skin_weights, 2, unused)
+                       - skin_carry(a_mean_t.xyz, a_skin_nodes, a_skin_weights, 1, unused)) / u_skin_step;
     }
 #else
     float speed = a_accel.xyz == vec3(0.0) ? a_cov_b.w : length(a_motion.xyz + a_accel.xyz * dt);

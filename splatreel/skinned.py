@@ -13,11 +13,6 @@ and canonical position c_k::
     cov(t)  = A cov A^T,  A = sum_k w_k R_k(t)              cov: its native conditional covariance
     w_k     ∝ exp(-|x - c_k|^2 / (2 sigma^2)), over its K nodes nearest in the canonical frame
 
-With `residual_motion` a Gaussian also moves on its own: x above is its native conditional mean at t, the canonical
-mean moved along its 4D shape's tilt in time (x + v (t - mu_t), as a native Gaussian moves), before the nodes carry
-it; the weights stay those of the canonical mean. A part the nodes do not follow (a thin, fast part with no nodes of
-its own) is then still drawn by Gaussians that move with it, each for the time it shows.
-
 Between keys the node positions follow a uniform Catmull-Rom spline (a straight chord would cut the arc of a turning
 part: 2 % of its radius half-way through a 24-degree turn) and the rotations a normalised lerp of the quaternions;
 outside the keys the first or last pose holds. The temporal opacity and the colour stay native: the temporal mean
@@ -165,9 +160,6 @@ class SkinnedGaussians:
     #: Whether `slice` gives the carried means' velocities (two more carries; a trainer, which draws no velocities,
     #: turns them off).
     with_velocities: bool = True
-    #: Whether each Gaussian's own motion (its native slice's mean at t) is carried, rather than its canonical mean
-    #: (module doc); stored in the checkpoint's metadata (absent: False).
-    residual_motion: bool = False
 
     TENSORS = Gaussians4D.TENSORS + NODE_TENSORS
     OPTIONAL_TENSORS = Gaussians4D.OPTIONAL_TENSORS
@@ -242,32 +234,23 @@ class SkinnedGaussians:
         `rows` alike) with the means and covariances carried by the nodes. `velocities` are the carried means'
         central difference over a thousandth of the clip (None without `with_velocities`)."""
         native = self.gaussians.slice(t, sh_degree_t, rows)
-        own = native.means if self.residual_motion else None
-        carried = self._carrier(rows, own)
+        carried = self._carrier(rows)
         moved, cov = carried(native.covariances, self.poses(t))
         if not self.with_velocities:
             return replace(native, means=moved, covariances=cov, velocities=None)
         with torch.no_grad():
             h = 1e-3 * (self.duration or 1.0)
-            if own is None:
-                ahead, behind = carried(None, self.poses(t + h))[0], carried(None, self.poses(t - h))[0]
-            else:  # the Gaussian's own motion over t -+ h as well
-                step = h * native.velocities.detach()
-                ahead = self._carrier(rows, own.detach() + step)(None, self.poses(t + h))[0]
-                behind = self._carrier(rows, own.detach() - step)(None, self.poses(t - h))[0]
+            ahead, behind = carried(None, self.poses(t + h))[0], carried(None, self.poses(t - h))[0]
         return replace(native, means=moved, covariances=cov, velocities=(ahead - behind) / (2 * h))
 
-    def _carrier(self, rows: Tensor | None, own: Tensor | None = None):
+    def _carrier(self, rows: Tensor | None):
         """A function (cov3 of the rows or None, node poses) -> `carry` of Gaussians `rows` (all when None; a bool
-        mask or indices) from their canonical means, or from `own` ``[rows, 3]`` (their native means at some time,
-        `residual_motion`): for float32 CPU tensors the fused kernel of `splatreel.carrying` (the same math in one
+        mask or indices): for float32 CPU tensors the fused kernel of `splatreel.carrying` (the same math in one
         pass), else the torch composition."""
         all_means = self.gaussians.means
         if rows is not None and rows.dtype == torch.bool:
             rows = rows.nonzero()[:, 0]
         nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
-        if own is not None:  # the rows' own means stand for the canonical ones, in the rows' order
-            all_means, rows = own, torch.arange(len(own), device=own.device)
         weights, canonical = weights.to(all_means), self.node_canonical.to(all_means)
         if all_means.device.type == "cpu" and all_means.dtype == torch.float32 and not (
                 canonical.requires_grad or weights.requires_grad):
@@ -281,9 +264,10 @@ class SkinnedGaussians:
 
     def centres(self, times) -> list[tuple[Tensor, Tensor]]:
         """``(means [N, 3], visible [N])`` of `slice(t)` for each t in `times` (see `Gaussians4D.centres`)."""
+        carried = self._carrier(None)
         with torch.no_grad():
-            return [(self._carrier(None, means if self.residual_motion else None)(None, self.poses(float(t)))[0],
-                     visible) for (means, visible), t in zip(self.gaussians.centres(times), times)]
+            return [(carried(None, self.poses(float(t)))[0], visible)
+                    for (_, visible), t in zip(self.gaussians.centres(times), times)]
 
     def anchors(self) -> Tensor:
         """``[N, 3]`` where each Gaussian is when it shows most: carried to its temporal mean (clamped to the keys)."""
@@ -309,13 +293,13 @@ class SkinnedGaussians:
         return {**self.gaussians.tensors(), **{name: getattr(self, name) for name in NODE_TENSORS}}
 
     def metadata(self) -> dict:
-        return {**self.gaussians.metadata(), "node_sigma": self.node_sigma, "residual_motion": self.residual_motion}
+        return {**self.gaussians.metadata(), "node_sigma": self.node_sigma}
 
     @classmethod
     def from_tensors(cls, tensors: dict[str, Tensor], meta: dict) -> "SkinnedGaussians":
         native = {k: v for k, v in tensors.items() if k not in NODE_TENSORS}
         return cls(Gaussians4D.from_tensors(native, meta), *(tensors[k] for k in NODE_TENSORS),
-                   node_sigma=float(meta["node_sigma"]), residual_motion=bool(meta.get("residual_motion", False)))
+                   node_sigma=float(meta["node_sigma"]))
 
     def to(self, device=None, dtype=None) -> "SkinnedGaussians":
         nodes, weights = self.skin

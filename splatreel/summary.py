@@ -4,9 +4,8 @@
 stored in its metadata under ``"summary"``, so that ``info`` can print it without torch. Its keys: ``kind``,
 ``count``, ``time_range``, ``bounds_min``/``bounds_max`` (the visible means over 9 times, `model_bounds`),
 ``sh_degree``, ``sh_degree_t``, ``rotation_convention``, ``motion`` (native 4D models: ``linear``, or ``quadratic``
-with accelerations; skinned models: ``nodes``, or ``nodes+residual`` with `residual_motion`), ``dtype``,
-``num_frames`` (keyframed models), ``num_nodes`` and ``num_keys`` (skinned models: control nodes, and their key
-times),
+with accelerations; skinned models: ``nodes``), ``dtype``, ``num_frames`` (keyframed models), ``num_nodes`` and
+``num_keys`` (skinned models: control nodes, and their key times),
 ``std_dev`` and ``opacity`` (median, 99th percentile; max for std-dev) and ``large`` (see `shape_stats`).
 """
 
@@ -72,6 +71,5 @@ def model_summary(model) -> dict:
     if model.kind == "gaussians4d":
         out["motion"] = "linear" if model.accelerations is None else "quadratic"
     if model.kind == "skinned":
-        out.update(motion="nodes+residual" if model.residual_motion else "nodes", num_nodes=int(model.num_nodes),
-                   num_keys=int(model.num_keys))
+        out.update(motion="nodes", num_nodes=int(model.num_nodes), num_keys=int(model.num_keys))
     return {**out, **shape_stats(std, opacity, float(np.linalg.norm(hi - lo)))}

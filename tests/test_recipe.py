@@ -75,9 +75,6 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert "quadratic motion until 30% of the run, then control nodes" in text and "--motion to change" in text
     assert cfg.node_key_every == ONE_VIEW_NODE_KEY_EVERY == 8 and "keyed every 8 frames" in text
     assert "--node-key-every to change" in text
-    assert cfg.node_residual_motion and "each Gaussian also moves on its own" in text
-    assert "--node-residual-motion to change" in text
-    assert not auto_recipe(dataclasses.replace(traits, views_per_time=4.0))[0].node_residual_motion  # a matrix
     assert cfg.densify.split == "space" and "split Gaussians in space only" in text and "--split" in text
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
     for pixels, cap in ((25565, 60_000), (40_000, 100_000), (80_000, 150_000)):  # 2.5 per opaque pixel
@@ -241,7 +238,6 @@ def test_help_states_the_recipes_budgets_and_motion(capsys):
     assert "5 for an image matrix, 10 for one camera per time" in said
     assert "auto for an image matrix, nodes for one camera per time" in said
     assert f"(default: the recipe's, {ONE_VIEW_NODE_KEY_EVERY} for one camera per time, else 1;" in said
-    assert "--node-residual-motion {on,off}" in said and "on for one camera per time, else off" in said
     # the help states the recipe's own values
     assert f"more than 10:1 anisotropic (default: the recipe's, {SCALE_RATIO_WEIGHT:g};" in said
     assert f"(default: the recipe's, {CLIP_DURATION:g}; the checkpoint keeps" in said
@@ -312,13 +308,11 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     # with --motion nodes the flow step's share is when the nodes are tracked (by the model's own motion): used
     out = tmp_path / "nodes.safetensors"
     assert main(["train", str(small_floor), "--out", str(out), "--iters", "6", "--num-gaussians", "300",
-                 "--motion", "nodes", "--flow-motion-at", "0.5", "--node-key-every", "4", "--node-residual-motion",
-                 "off", "--quiet"]) == 0
+                 "--motion", "nodes", "--flow-motion-at", "0.5", "--node-key-every", "4", "--quiet"]) == 0
     said = capsys.readouterr().out
     assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
     model = load_checkpoint(out).model
     assert model.kind == "skinned" and model.num_keys == 4  # 12 frames keyed at 0, 4, 8, 11
-    assert not model.residual_motion
     # the recipe's own: nodes at 30% of the run, keyed every 8 frames; its flow share is no news to the user
     out = tmp_path / "recipe.safetensors"
     assert main(["train", str(small_floor), "--out", str(out), "--iters", "6", "--num-gaussians", "300",
@@ -327,7 +321,6 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
     model = load_checkpoint(out).model
     assert model.kind == "skinned" and model.num_keys == 3  # 12 frames keyed at 0, 8, 11
-    assert model.residual_motion  # the recipe's for one camera per time
 
 
 def test_split_option_overrides_the_recipe(small_floor, tmp_path, capsys):

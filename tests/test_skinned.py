@@ -1,7 +1,6 @@
 """Skinned 4D Gaussians: carried by control nodes exactly as a rigid motion moves them, the splines through the
 node keys, anchors, selection, and the checkpoint round trip."""
 
-import dataclasses
 import math
 
 import numpy as np
@@ -10,7 +9,6 @@ import torch
 
 from splatreel import quaternion
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
-from splatreel.checkpoint_file import read_metadata
 from splatreel.errors import CheckpointError, ModelError
 from splatreel.skinned import SkinnedGaussians, catmull_rom, key_segments, skin_weights
 from test_model import random_model
@@ -125,37 +123,6 @@ def test_checkpoint_round_trip(tmp_path):
     assert back.node_sigma == pytest.approx(0.4)
     for t in (0.0, 0.33, 1.0):
         torch.testing.assert_close(back.slice(t).means, model.slice(t).means)
-
-
-def test_residual_motion_carries_each_gaussians_own_line_and_round_trips(tmp_path):
-    """With `residual_motion` the nodes carry each Gaussian's native mean at t (its canonical mean moved along its
-    own line), not its canonical mean: still nodes leave the native slice, turning ones turn it; the velocities are
-    the carried means' rate, the float32 (fused) path and rows agree, and the flag survives a checkpoint (one
-    written without it reads as off)."""
-    still = dataclasses.replace(spinning(turns=0.0), residual_motion=True)
-    native = still.gaussians.slice(0.3)
-    assert float(native.velocities.norm(dim=1).max()) > 0.1  # the random Gaussians move on their own
-    torch.testing.assert_close(still.slice(0.3).means, native.means)
-    assert not torch.allclose(spinning(turns=0.0).slice(0.3).means, native.means)  # without it they do not move
-    model = dataclasses.replace(spinning(turns=0.5), residual_motion=True)
-    g = model.slice(0.25)  # a key: the blend of identical rigid motions is that motion
-    r = quaternion.to_rotmat(turn(2 * math.pi * 0.5 * 0.25)[None])[0]
-    own = model.gaussians.slice(0.25).means
-    torch.testing.assert_close(g.means, (r @ (own - CENTRE)[..., None])[..., 0] + CENTRE)
-    h = 1e-5
-    rate = (model.slice(0.25 + h).means - model.slice(0.25 - h).means) / (2 * h)
-    torch.testing.assert_close(g.velocities, rate, rtol=0.02, atol=0.02)
-    rows = torch.tensor([3, 17, 42, 199])
-    torch.testing.assert_close(model.slice(0.61, rows=rows).means, model.slice(0.61).means[rows])
-    f32 = model.to(dtype=torch.float32)
-    torch.testing.assert_close(f32.slice(0.61).means, model.slice(0.61).means.float(), rtol=1e-4, atol=1e-4)
-    torch.testing.assert_close(f32.centres([0.61])[0][0], f32.slice(0.61).means)
-    path = save_checkpoint(tmp_path / "residual.safetensors", f32)
-    back = load_checkpoint(path).model
-    assert back.residual_motion and read_metadata(path)["summary"]["motion"] == "nodes+residual"
-    torch.testing.assert_close(back.slice(0.61).means, f32.slice(0.61).means)
-    older = {k: v for k, v in f32.metadata().items() if k != "residual_motion"}
-    assert not SkinnedGaussians.from_tensors(f32.tensors(), older).residual_motion
 
 
 def test_bad_node_tensors_fail_in_one_line(tmp_path):

@@ -4,7 +4,6 @@ Gaussians on the GPU as the viewer does; USD; ``info`` and ``convert``."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import re
@@ -17,7 +16,6 @@ from splatreel.cameras import look_at, orbit
 from splatreel.checkpoint import save_checkpoint
 from splatreel.cli import main
 from splatreel.covariance import condition_on_time, visible_span
-from splatreel.export.base import ExportError
 from splatreel.export.web import web_data, write_web
 from splatreel.rasterize import rasterize
 from splatreel.skinned import SkinnedGaussians, node_poses
@@ -47,12 +45,12 @@ def checkpoint(model, tmp_path_factory):
     return save_checkpoint(tmp_path_factory.mktemp("skinned") / "spin.safetensors", model.to(dtype=torch.float32))
 
 
-def carried_synthetic(model, n: int = 2000, residual: bool = False, **options) -> SkinnedGaussians:
-    """`synthetic_model`'s native Gaussians carried by `model`'s spinning nodes; each also moves on its own line,
-    which moves a skinned one only with `residual` (its `residual_motion`)."""
+def carried_synthetic(model, n: int = 2000, **options) -> SkinnedGaussians:
+    """`synthetic_model`'s native Gaussians (each also moving on its own line, which must not move a skinned one)
+    carried by `model`'s spinning nodes."""
     native = synthetic_model(n, seed=8, radius=0.6, scale=0.03, **{"sh_degree": 1, **options})
     return SkinnedGaussians(native, model.node_canonical, model.node_times, model.node_positions,
-                            model.node_rotations, node_sigma=0.4, residual_motion=residual)
+                            model.node_rotations, node_sigma=0.4)
 
 
 def read_array(data: bytes, name: str) -> np.ndarray:
@@ -140,26 +138,21 @@ def test_the_web_data_of_a_skinned_model_is_about_that_of_its_canonical_gaussian
     big = carried_synthetic(model, 3000)
     size, native = len(web_data(big)), len(web_data(big.gaussians))
     assert size < 1.5 * native and size < 17 * native / 8, (size, native)
-    # the page moves a residual motion on straight lines: one on curves is refused, not drawn wrong
-    curved = dataclasses.replace(carried_synthetic(model, 50, True), gaussians=dataclasses.replace(
-        big.gaussians.select(torch.arange(50)), accelerations=torch.full((50, 3), 0.5, dtype=torch.float64)))
-    with pytest.raises(ExportError, match="residual motion on straight lines: this one has accelerations"):
-        web_data(curved)
 
 
 def test_web_page_carries_a_skinned_model_as_the_desktop_renderer(model, served, browser):
-    """The page against `render_image` between node keys (float and quantized; with residual motion); and its node
-    poses (``skinning.js``) against `splatreel.skinned.node_poses` on uneven keys with turns past half a turn between
+    """The page against `render_image` between node keys (float and quantized); and its node poses
+    (``skinning.js``) against `splatreel.skinned.node_poses` on uneven keys with turns past half a turn between
     them, before, in and after the first and last segments."""
     root, base = served
+    small = carried_synthetic(model, 600, sh_degree=2, sh_degree_t=1)
     cam = look_at((1.8, -1.9, 1.0), (0.0, 0.0, 0.0), "z", fov_deg=45, width=96, height=72)
     t = 0.8  # between keys 0.75 and 0.875
-    for quantize, residual in ((False, False), (True, False), (False, True)):  # residual: each one's line carried
-        small = carried_synthetic(model, 600, residual, sh_degree=2, sh_degree_t=1)
-        name = f"skinned{int(quantize)}{int(residual)}"
-        write_web(small, root / name, background=BACKGROUND, up_axis="Z", quantize=quantize)
-        _, db = check_page(browser, url(f"{base}/{name}/index.html", cam, t), small, cam, t)
-        assert db >= WEB_MIN_PSNR, (quantize, residual, db)
+    for quantize in (False, True):
+        write_web(small, root / f"skinned{int(quantize)}", background=BACKGROUND, up_axis="Z", quantize=quantize)
+        page = url(f"{base}/skinned{int(quantize)}/index.html", cam, t)
+        _, db = check_page(browser, page, small, cam, t)
+        assert db >= WEB_MIN_PSNR, (quantize, db)
     g = torch.Generator().manual_seed(5)
     times = torch.tensor([0.0, 0.2, 0.7, 1.0], dtype=torch.float64)
     positions = torch.randn(4, 5, 3, generator=g, dtype=torch.float64)
@@ -235,17 +228,11 @@ def attributes_of(renderer) -> bytes:
         previous.restore()
 
 
-@pytest.mark.parametrize("residual", [False, True])
-def test_gl_carries_a_skinned_model_on_the_gpu_as_the_rasterizer_draws_its_slice(model, residual):
+def test_gl_carries_a_skinned_model_on_the_gpu_as_the_rasterizer_draws_its_slice(model):
     """The renderer uploads the Gaussians once and per displayed time only the node poses, and the pre-pass
     carries each Gaussian by its nodes: the image is the rasterizer's of `slice(t)` at a node key and between keys
-    (whose Catmull-Rom poses no chord reproduces), and the speed mode composites the slice's velocities; with
-    residual motion each Gaussian's own line is carried (the CPU sort's `posed` as well)."""
-    small = carried_synthetic(model, residual=residual)
-    if residual:
-        assert not torch.allclose(small.slice(0.8).means, carried_synthetic(model).slice(0.8).means, atol=0.02)
-        at = posed(to_arrays(small), 0.8)
-        np.testing.assert_allclose(at.mean_t[:, :3], small.slice(0.8).means.numpy(), rtol=1e-5, atol=1e-5)
+    (whose Catmull-Rom poses no chord reproduces), and the speed mode composites the slice's velocities."""
+    small = carried_synthetic(model)
     camera = orbit(15, 75, 2.5, fov_deg=45, width=96, height=96)
     background = (0.1, 0.2, 0.3)
     r = SplatRenderer(headless_context(), small)

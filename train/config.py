@@ -180,11 +180,6 @@ class TrainConfig:
     #: for the whole clip ('on'); never ('off'); or when the nodes carry them to every key frame and they draw it
     #: within `train.pose_fit.TEMPLATE_FIT` times their error at the middle frame ('auto').
     node_template: str = "auto"
-    #: Motion 'nodes': the nodes carry each Gaussian's own native motion at t (its mean moved along its 4D shape's
-    #: tilt in time, learned from the switch to nodes on) rather than its canonical mean
-    #: (`splatreel.skinned.SkinnedGaussians.residual_motion`): a part the nodes do not follow can still be drawn by
-    #: Gaussians that move with it.
-    node_residual_motion: bool = False
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0
     #: 'auto' (CUDA when available, else CPU), 'cpu' or 'cuda'.

@@ -26,10 +26,7 @@ A dataset where no camera films consecutive frames (one camera per time) has no 
 the nodes by the model's own motion (`track_nodes_by_motion`; the native motion, fitted by every view of the clip, is
 the scene flow; most nodes go where Gaussians move with their neighbours, `coherent_travel`, and those on what stays
 still are pinned), and each frame keeps its own Gaussians. The learned poses are then keyed every few frames
-(`TrainConfig.node_key_every`): a pose per frame is fitted by one image and moves to fake its depth. There each
-Gaussian also learns a motion of its own on top of its nodes' (`TrainConfig.node_residual_motion`,
-`SkinnedGaussians.residual_motion`): the model the nodes are tracked from may not draw a small fast part yet, and its
-later Gaussians must still be able to follow it.
+(`TrainConfig.node_key_every`): a pose per frame is fitted by one image and moves to fake its depth.
 """
 
 from __future__ import annotations
@@ -318,13 +315,13 @@ class Nodes:
         self.pairs, self.pair_weights = j[:, 1:], torch.exp(-0.5 * (d[:, 1:] / self.sigma) ** 2)
         self._skin: tuple | None = None
 
-    def skinned(self, gaussians: Gaussians4D, step: int, residual_motion: bool = False) -> SkinnedGaussians:
-        """`gaussians` (canonical) carried by these nodes (with their own motion: `residual_motion`), their skin
-        recomputed when the count changed or every `SKIN_EVERY` steps."""
+    def skinned(self, gaussians: Gaussians4D, step: int) -> SkinnedGaussians:
+        """`gaussians` (canonical) carried by these nodes, their skin recomputed when the count changed or every
+        `SKIN_EVERY` steps."""
         if self._skin is None or self._skin[0] != len(gaussians) or step - self._skin[1] >= SKIN_EVERY:
             self._skin = (len(gaussians), step, skin_weights(gaussians.means, self.canonical, self.sigma))
         return SkinnedGaussians(gaussians, self.canonical, self.key_times, self.positions, self.rotations, self.sigma,
-                                skin=self._skin[2], with_velocities=False, residual_motion=residual_motion)
+                                skin=self._skin[2], with_velocities=False)
 
     def rigidity(self) -> torch.Tensor:
         return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)

@@ -263,12 +263,6 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
             decisions.append(Decision(f"the nodes' poses keyed every {ONE_VIEW_NODE_KEY_EVERY} frames",
                                       "a pose keyed at every frame is fitted by one image and can fake its depth",
                                       "--node-key-every"))
-            # measured, 800 steps (bench/motion_experiments.py node-residual): the floor 25.33 against 24.82 dB and,
-            # with another seed, 24.78 against 24.25
-            changes.update(node_residual_motion=True)
-            decisions.append(Decision("each Gaussian also moves on its own on top of its nodes",
-                                      "a thin or fast part the nodes do not follow is then still drawn by Gaussians "
-                                      "that move with it", "--node-residual-motion"))
         # measured held out (half-way times), 5 minutes: the clip as 1, 3, 5 and 15 time units scored 24.2, 25.0,
         # 25.4 and 24.7 dB on the spinner; at 5 units with a constant rotation rate texture fell 30.3 -> 28.2 and
         # wave 33.9 -> 32.1; with the rate decaying 10x: spinner 25.4, texture 30.3, wave 33.6, and the floor

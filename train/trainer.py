@@ -235,7 +235,7 @@ class Trainer:
         """The model being trained, on the trainer's own time axis (`self.ds`'s times; see `dataset_model`): native
         4D Gaussians, or once control nodes carry them, skinned ones."""
         native = self.native_model()
-        return native if self.nodes is None else self.nodes.skinned(native, self.step, self.cfg.node_residual_motion)
+        return native if self.nodes is None else self.nodes.skinned(native, self.step)
 
     def native_model(self) -> Gaussians4D:
         """The native 4D Gaussians being trained (canonical once nodes carry them: their accelerations unused)."""
@@ -267,8 +267,8 @@ class Trainer:
             return model
         n = self.nodes
         keys = torch.tensor([self.source.frame_times[k] for k in self._node_keys()], dtype=torch.float32)
-        return SkinnedGaussians(model, n.canonical.cpu(), keys, n.positions.detach().cpu(), n.rotations.detach().cpu(),
-                                n.sigma, residual_motion=self.cfg.node_residual_motion)
+        return SkinnedGaussians(model, n.canonical.cpu(), keys,
+                                n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:

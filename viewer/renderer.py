@@ -389,7 +389,6 @@ class SplatRenderer:
                       u_near=footprint.near_plane, u_smooth_fade=settings.temporal_fade == "smooth",
                       u_sh_degree=degree, u_sh=0, u_nodes=1,
                       u_skin_step=2.0 * splats.skin.keys.step if splats.skin is not None else 1.0,
-                      u_skin_residual=float(splats.skin is not None and splats.skin.keys.residual),
                       u_value=VALUE_MODES.index(settings.mode) + 1 if settings.mode in VALUE_MODES else 0)
 
     def _resolve(self, settings: RenderSettings, value_range, target, viewport) -> None:

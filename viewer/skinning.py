@@ -5,9 +5,8 @@ Scenes", CVPR 2024). The renderer uploads a skinned model's canonical native 4D 
 native model (`splats.from_gaussians4d`), plus each Gaussian's skin (`SkinArrays`: 4 node indices and 4 weights; a
 model with fewer than 4 nodes pads with zero weights). Per displayed time the CPU computes only the M node poses
 (`splatreel.skinned.node_poses`) and uploads them as a small float texture (`NodeKeys.texels`); the pre-pass
-evaluates the native Gaussian at t (temporal opacity, colour) and carries its canonical mean (with the model's
-`residual_motion`, its native mean at t) and its covariance by its nodes (``shaders/splat_skin.glsl``), as
-`SkinnedGaussians.slice` does.
+evaluates the native Gaussian at t (temporal opacity, colour) and carries its canonical mean and its covariance by
+its nodes (``shaders/splat_skin.glsl``), as `SkinnedGaussians.slice` does.
 
 Node texture: row k holds node k, 4 RGBA texels per pose set: its rotation's rows 0-2 with the position's x, y, z
 in w, then its canonical position c_k. Set 0 is the pose at t, sets 1 and 2 at t - h and t + h (h = `SPEED_STEP`
@@ -51,14 +50,11 @@ class NodeKeys:
     positions: torch.Tensor
     rotations: torch.Tensor
     step: float
-    #: The model's `residual_motion`: the nodes carry each Gaussian's own native mean at t, not its canonical mean.
-    residual: bool = False
 
     @classmethod
     def of(cls, model) -> "NodeKeys":
         tensors = (model.node_canonical, model.node_times, model.node_positions, model.node_rotations)
-        return cls(*(x.detach().to("cpu", torch.float64) for x in tensors), step=SPEED_STEP * (model.duration or 1.0),
-                   residual=bool(getattr(model, "residual_motion", False)))
+        return cls(*(x.detach().to("cpu", torch.float64) for x in tensors), step=SPEED_STEP * (model.duration or 1.0))
 
     @property
     def count(self) -> int:
@@ -111,12 +107,7 @@ def posed(splats, t: float):
     positions, turns = (x.astype(np.float32) for x in splats.skin.keys.poses(t))
     n = len(splats.mean_t)
     mean_t, cov, carried_cov = splats.mean_t.copy(), splats.cov.copy(), np.empty((n, 3, 3), np.float32)
-    start = splats.mean_t
-    if splats.skin.keys.residual:  # each Gaussian's own native mean at t is what the nodes carry
-        dt = (float(t) - splats.mean_t[:, 3:4]).astype(np.float32)
-        start = splats.mean_t.copy()
-        start[:, :3] += (splats.motion[:, :3] + 0.5 * splats.accel[:, :3] * dt) * dt
-    carry_forward(np.arange(n), start, splats.cov[:, COV_FULL], splats.skin.nodes, splats.skin.weights,
+    carry_forward(np.arange(n), splats.mean_t, splats.cov[:, COV_FULL], splats.skin.nodes, splats.skin.weights,
                   splats.skin.keys.canonical.numpy(), positions, turns, True, mean_t, carried_cov,
                   np.empty((0, 3, 3), np.float32))  # writes the xyz columns of mean_t only; no blend (no backward)
     cov[:, :6] = carried_cov[:, COV_TRIU[:, 0], COV_TRIU[:, 1]]  # opacity and speed stay

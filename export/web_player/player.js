@@ -136,9 +136,8 @@
           x = p[q] + (p[q + 4] + 0.5 * p[q + 9] * dt) * dt;
           y = p[q + 1] + (p[q + 5] + 0.5 * p[q + 10] * dt) * dt;
           z = p[q + 2] + (p[q + 6] + 0.5 * p[q + 11] * dt) * dt;
-          if (poses) {  // skinned: the canonical mean (residual motion: the mean at t) carried by the nodes
-            if (model.residual) splatreelCarry(poses, model.skin, i, x, y, z, carried);  // (skinning.js, prepended)
-            else splatreelCarry(poses, model.skin, i, p[q], p[q + 1], p[q + 2], carried);
+          if (poses) {  // skinned: the canonical mean carried by the nodes (skinning.js, prepended to this source)
+            splatreelCarry(poses, model.skin, i, p[q], p[q + 1], p[q + 2], carried);
             [x, y, z] = carried;
           }
         }
@@ -223,7 +222,6 @@
 
     const nodes = skinned && splatreelNodeTexture(gl, 2, H, arrays, texture);  // (skinning.js)
     if (skinned) gl.uniform1i(U("u_nodes"), 2);
-    if (skinned) gl.uniform1f(U("u_skin_residual"), H.residual_motion ? 1 : 0);
 
     // what the sort worker needs, as float32: native [x y z mu_t vx vy vz 1/(2 Sigma_tt) opacity ax ay az] per
     // Gaussian (a = 0 without accelerations) and a skinned model's skin [4 nodes, 4 weights]; keyframed: every
@@ -247,7 +245,7 @@
         if (texels === 5) for (let k = 0; k < 3; k++) pos[12 * r + 9 + k] = value(stride * r + 16 + k);
         if (skinned) for (let k = 0; k < 8; k++) skin[8 * r + k] = value(stride * r + 16 + k);
       }
-      sortModel = { kind: H.kind, count: H.count, constants: C, pos, skin, residual: !!H.residual_motion };
+      sortModel = { kind: H.kind, count: H.count, constants: C, pos, skin };
     }
     const source = splatreelCarry.toString() + "\n(" + sortWorker.toString() + ")()";
     const worker = new Worker(URL.createObjectURL(new Blob([source], { type: "text/javascript" })));

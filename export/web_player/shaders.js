@@ -112,7 +112,6 @@ vec3 sh_color(int row0, int row1, float w, vec3 dir, float tau) {
 
 #ifdef SKINNED
 /*SPLAT_SKIN*/
-uniform float u_skin_residual;  // 1: residual motion, the nodes carry the native mean at t; 0: the canonical mean
 #endif
 
 void cull() {
@@ -141,9 +140,9 @@ void main() {
   float marginal = exp(-dt * dt * motion.w);
   if (!(marginal > TEMPORAL_CULL)) { cull(); return; }
   float opacity = shape.w * marginal;
-#if defined(SKINNED)  // splatreel.skinned: the canonical mean (residual motion: moved by v) carried by the nodes at t
+#if defined(SKINNED)  // splatreel.skinned: the canonical mean (not moved by v) carried by the nodes at t
   mat3 blend;
-  vec3 mean = skin_carry(m.xyz + u_skin_residual * motion.xyz * dt, geom(i, 4), geom(i, 5), 0, blend);
+  vec3 mean = skin_carry(m.xyz, geom(i, 4), geom(i, 5), 0, blend);
 #elif defined(ACCELERATED)
   vec3 mean = m.xyz + (motion.xyz + 0.5 * geom(i, 4).xyz * dt) * dt;  // splatreel.model: mu + v dt + a dt^2 / 2
 #else

@@ -9,9 +9,7 @@ ORDER = 10
 HELP = "print what a checkpoint or model file holds (count, time range, bounds, SH degrees, size)"
 #: How the table words a summary's ``motion`` (others as they are: ``linear``)
 MOTION_TEXT = {"quadratic": "quadratic (each Gaussian has an acceleration)",
-               "nodes": "nodes (skinned: each Gaussian follows the blend of its nearest control nodes)",
-               "nodes+residual": "nodes (skinned: each Gaussian follows the blend of its nearest control nodes) and "
-                                 "each Gaussian's own line in time"}
+               "nodes": "nodes (skinned: each Gaussian follows the blend of its nearest control nodes)"}
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

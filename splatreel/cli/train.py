@@ -107,11 +107,6 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "their spline; with one camera per time a pose keyed at every frame is fitted by one image "
                         f"and can fake its depth (default: the recipe's, {ONE_VIEW_NODE_KEY_EVERY} for one camera "
                         "per time, else 1; a resumed run keeps its own)")
-    p.add_argument("--node-residual-motion", choices=["on", "off"],
-                   help="with nodes: each Gaussian also moves on its own (a line in time, learned once the nodes take "
-                        "over) on top of what its nodes carry, so that a part no node follows is still drawn by "
-                        "Gaussians that move with it (default: the recipe's, on for one camera per time, else off; a "
-                        "resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -163,9 +158,7 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "flow_motion_at": args.flow_motion_at,
             "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion,
             "node_template": None if resumed else args.node_template,
-            "node_key_every": None if resumed else args.node_key_every,
-            "node_residual_motion": None if resumed or args.node_residual_motion is None
-            else args.node_residual_motion == "on"}
+            "node_key_every": None if resumed else args.node_key_every}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:

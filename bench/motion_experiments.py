@@ -39,7 +39,9 @@ EXPERIMENT:
          Gaussian from its native slice's mean at t (its canonical mean moved along its 4D shape's tilt in time)
          instead of from its canonical mean: each Gaussian may learn a linear motion of its own on top of its
          nodes' (none at the switch to nodes, where the tilt is taken out; learned from there), for parts the nodes
-         do not follow.
+         do not follow. Built as a `train` option in commit ace306e and taken out again in 7c22c11.
+         `node-residual-still`: only the Gaussians that take at least half their blend from nodes pinned as still
+         (with one camera per time, those on what the tracking took for still), where nothing else moves them.
 
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
@@ -391,13 +393,43 @@ def use_floor_track_scores() -> list[str]:
     return []
 
 
-def use_node_residual_motion() -> list[str]:
+def use_node_residual_motion(where: str = "all") -> list[str]:
     """`node-residual`: skinned Gaussians carried by their nodes from their native slice's mean at t (their canonical
     mean moved along their 4D shape's tilt in time) instead of from their canonical mean, so each may learn a linear
-    motion of its own on top of its nodes' (the tilt is zero at the switch to nodes and learned from there)."""
+    motion of its own on top of its nodes' (the tilt is zero at the switch to nodes and learned from there).
+    `node-residual-still` (`where` 'still'): only the Gaussians that take at least half their blend from nodes pinned
+    as still, where nothing else would move them."""
     from splatreel import skinned
     from splatreel.carrying import fused_carry
     from splatreel.model import take_rows
+    import splatreel.train.nodes as nodes_module
+    import splatreel.train.trainer as trainer_module
+
+    def on_still(model, still) -> torch.Tensor | None:
+        if still is None:
+            return None
+        nodes, weights = model.skin
+        return (weights * still.to(weights.device)[nodes].to(weights)).sum(1) >= 0.5
+
+    if where == "still":
+        skinned_by = nodes_module.Nodes.skinned
+        dataset_model = trainer_module.Trainer.dataset_model
+
+        def skinned_with_mask(self, gaussians, step):
+            model = skinned_by(self, gaussians, step)
+            model.residual_rows = on_still(model, self.still)
+            return model
+
+        def dataset_model_with_mask(self, trained=None):
+            model = dataset_model(self, trained)
+            if self.nodes is not None:
+                model.residual_rows = on_still(model, self.nodes.still)
+                if model.residual_rows is not None:
+                    print(f"node-residual-still: {int(model.residual_rows.sum()):,} of {len(model):,} Gaussians "
+                          "move on their own", file=sys.stderr)
+            return model
+        nodes_module.Nodes.skinned = skinned_with_mask
+        trainer_module.Trainer.dataset_model = dataset_model_with_mask
 
     def slice_with_residual(self, t, sh_degree_t=None, rows=None):
         native = self.gaussians.slice(t, sh_degree_t, rows)
@@ -405,6 +437,12 @@ def use_node_residual_motion() -> list[str]:
             rows = rows.nonzero()[:, 0]
         nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
         means = native.means
+        if where == "still":  # the others from their canonical means, as without residual motion
+            mask = getattr(self, "residual_rows", None)
+            canonical_means = self.gaussians.means if rows is None else take_rows(self.gaussians.means, rows)
+            mask = torch.zeros(len(means), dtype=torch.bool) if mask is None else (
+                mask if rows is None else take_rows(mask, rows))
+            means = torch.where(mask.to(means.device)[:, None], means, canonical_means)
         weights, canonical = weights.to(means), self.node_canonical.to(means)
         poses = [x.to(means) for x in self.poses(t)]
         if means.device.type == "cpu" and means.dtype == torch.float32 and not canonical.requires_grad:
@@ -441,6 +479,7 @@ def _keep_exact_models_native() -> None:
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
                "floor-tracks": use_floor_track_scores, "node-residual": use_node_residual_motion,
+               "node-residual-still": functools.partial(use_node_residual_motion, "still"),
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))}}
 

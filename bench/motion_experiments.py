@@ -399,10 +399,9 @@ def use_node_residual_motion(where: str = "all") -> list[str]:
     motion of its own on top of its nodes' (the tilt is zero at the switch to nodes and learned from there).
     `node-residual-still` (`where` 'still'): only the Gaussians that take at least half their blend from nodes pinned
     as still, where nothing else would move them."""
-    from splatreel import skinned
-    from splatreel.carrying import fused_carry
-    from splatreel.model import take_rows
     import splatreel.train.nodes as nodes_module
+    from splatreel import skinned
+    from splatreel.model import take_rows
     import splatreel.train.trainer as trainer_module
 
     def on_still(model, still) -> torch.Tensor | None:
@@ -435,21 +434,17 @@ def use_node_residual_motion(where: str = "all") -> list[str]:
         native = self.gaussians.slice(t, sh_degree_t, rows)
         if rows is not None and rows.dtype == torch.bool:
             rows = rows.nonzero()[:, 0]
-        nodes, weights = (x if rows is None else take_rows(x, rows) for x in self.skin)
-        means = native.means
+        own = native.means  # the rows' native means at t
         if where == "still":  # the others from their canonical means, as without residual motion
             mask = getattr(self, "residual_rows", None)
-            canonical_means = self.gaussians.means if rows is None else take_rows(self.gaussians.means, rows)
-            mask = torch.zeros(len(means), dtype=torch.bool) if mask is None else (
+            mask = torch.zeros(len(own), dtype=torch.bool) if mask is None else (
                 mask if rows is None else take_rows(mask, rows))
-            means = torch.where(mask.to(means.device)[:, None], means, canonical_means)
-        weights, canonical = weights.to(means), self.node_canonical.to(means)
-        poses = [x.to(means) for x in self.poses(t)]
-        if means.device.type == "cpu" and means.dtype == torch.float32 and not canonical.requires_grad:
-            moved, cov = fused_carry(means, native.covariances, torch.arange(len(means)), nodes, weights, canonical,
-                                     *poses)
-        else:
-            moved, cov = skinned.carry(means, native.covariances, nodes, weights, canonical, *poses)
+            canonical = self.gaussians.means if rows is None else take_rows(self.gaussians.means, rows)
+            own = torch.where(mask.to(own.device)[:, None], own, canonical)
+        means = own if rows is None else self.gaussians.means.index_put((rows,), own)
+        # the model's own carry (fused kernel or torch) of these means in place of the canonical ones
+        moving = dataclasses.replace(self, gaussians=dataclasses.replace(self.gaussians, means=means))
+        moved, cov = moving._carrier(rows)(native.covariances, self.poses(t))
         return dataclasses.replace(native, means=moved, covariances=cov, velocities=None)
 
     skinned.SkinnedGaussians.slice = slice_with_residual

@@ -43,6 +43,10 @@ EXPERIMENT:
          `node-residual-still`: only the Gaussians that take at least half their blend from nodes pinned as still
          (with one camera per time, those on what the tracking took for still), where nothing else moves them.
 
+colour-tracks  the trainer's `--motion nodes` with one camera per time, each group of moving nodes that its
+         track loses (its centre off the pixels that differ from its camera's median image, and off its own colour)
+         followed instead by its colour in the images (`bench/colour_tracks.py`); reads no truth.
+
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
 
@@ -393,6 +397,31 @@ def use_floor_track_scores() -> list[str]:
     return []
 
 
+def use_colour_tracks() -> list[str]:
+    """`colour-tracks`: the tracked nodes' lost groups moved by their colour in the images (`bench/colour_tracks.py`)."""
+    import colour_tracks  # bench/colour_tracks.py, this script's neighbour
+
+    import splatreel.train.flow_step as flow_step
+    from splatreel.train.nodes import TrackedNodes
+
+    track, node_step, seen = flow_step.track_nodes_by_motion, flow_step._node_step, {}
+
+    def node_step_seen(model, ds, background, *args, **kwargs):
+        seen.update(ds=ds, background=background)
+        return node_step(model, ds, background, *args, **kwargs)
+
+    def retracked(model, times, count, seed=0):
+        tracked = track(model, times, count, seed)
+        if tracked is None:
+            return None
+        log = functools.partial(print, file=sys.stderr)
+        positions = colour_tracks.retrack(tracked, seen["ds"], seen["background"].cpu(), log)
+        return TrackedNodes(positions, tracked.rotations, tracked.middle, tracked.still)
+
+    flow_step._node_step, flow_step.track_nodes_by_motion = node_step_seen, retracked
+    return []
+
+
 def use_node_residual_motion(where: str = "all") -> list[str]:
     """`node-residual`: skinned Gaussians carried by their nodes from their native slice's mean at t (their canonical
     mean moved along their 4D shape's tilt in time) instead of from their canonical mean, so each may learn a linear
@@ -473,7 +502,7 @@ def _keep_exact_models_native() -> None:
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
-               "floor-tracks": use_floor_track_scores, "node-residual": use_node_residual_motion,
+               "floor-tracks": use_floor_track_scores, "colour-tracks": use_colour_tracks, "node-residual": use_node_residual_motion,
                "node-residual-still": functools.partial(use_node_residual_motion, "still"),
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))}}

@@ -33,7 +33,8 @@ EXPERIMENT:
          (by the model's own motion) replaced by the exact motion of the part each node sits on at the middle frame
          (none within reach: still), then learned as usual: what better tracking could buy at most there.
          `floor-nodes-exact-ball`, `-box`, `-pendulum`, `-box-pendulum`: the nodes on those parts alone, the others
-         as tracked.
+         as tracked; `floor-nodes-exact-pendulum-moving`: the pendulum's nodes that the tracking took for moving
+         alone (those it pinned as still stay pinned).
 
   node-residual  the trainer's control nodes (`--motion nodes`, or motion `auto` where it uses them) carry each
          Gaussian from its native slice's mean at t (its canonical mean moved along its 4D shape's tilt in time)
@@ -295,11 +296,12 @@ def use_floor_still_oracle() -> list[str]:
     return []
 
 
-def use_floor_exact_nodes(only: tuple[str, ...] | None = None) -> list[str]:
+def use_floor_exact_nodes(only: tuple[str, ...] | None = None, moving_only: bool = False) -> list[str]:
     """`--motion nodes` on the floor, its node tracks (by the model's own motion) replaced by the scene's exact
     motion: the same nodes, each posed at every frame by the rigid motion of the part it sits on at the middle frame
     (none within reach: still, and pinned), then learned as usual. What better tracking could buy at most in this
-    regime. `only`: the nodes on those parts alone, the others as tracked."""
+    regime. `only`: the nodes on those parts alone, the others as tracked; `moving_only`: of those, the ones the
+    tracking took for moving (the others stay pinned)."""
     import splatreel.train.flow_step as flow_step
     from splatreel.train.nodes import TrackedNodes
 
@@ -318,6 +320,8 @@ def use_floor_exact_nodes(only: tuple[str, ...] | None = None) -> list[str]:
         if only is None:
             return TrackedNodes(positions, rotations, tracked.middle, part < 0)
         mine = torch.isin(part, torch.tensor([parts.names.index(n) for n in only]))
+        if moving_only and tracked.still is not None:
+            mine &= ~tracked.still
         still = tracked.still.clone() if tracked.still is not None else torch.zeros(len(part), dtype=torch.bool)
         still[mine] = False
         return TrackedNodes(torch.where(mine[:, None], positions, tracked.positions),
@@ -505,7 +509,8 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor
                "floor-tracks": use_floor_track_scores, "colour-tracks": use_colour_tracks, "node-residual": use_node_residual_motion,
                "node-residual-still": functools.partial(use_node_residual_motion, "still"),
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
-                  for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))}}
+                  for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))},
+               "floor-nodes-exact-pendulum-moving": functools.partial(use_floor_exact_nodes, ("pendulum",), True)}
 
 
 def main() -> None:

@@ -55,6 +55,7 @@ def frame_images(ds, background, frames: int):
 
 
 def groups(tracked, spacing: float) -> list[np.ndarray]:
+    """The moving nodes of `tracked` in groups: connected within two node spacings at the middle frame."""
     from scipy.sparse.csgraph import connected_components
 
     moving = np.nonzero(~tracked.still.numpy())[0] if tracked.still is not None else np.arange(len(tracked.canonical))
@@ -64,6 +65,7 @@ def groups(tracked, spacing: float) -> list[np.ndarray]:
 
 
 def _changed(img, median):
+    """Where `img` differs from its camera's `median` image: something moved there."""
     return np.abs(img - median).sum(-1) > TAU
 
 
@@ -71,7 +73,7 @@ def _around(centres, views):
     """Per frame: its image, camera and the 3 x 3 pixels around the centre's projection (empty off the image)."""
     for k, x in enumerate(centres):
         cam, img, c = views[k]
-        u, v = np.round(cam.project(x[None])[0][0]).astype(int)
+        u, v = np.floor(cam.project(x[None])[0][0]).astype(int)  # pixel i spans [i, i + 1)
         yield img, c, (slice(max(v - 1, 0), max(v + 2, 0)), slice(max(u - 1, 0), max(u + 2, 0)))
 
 
@@ -91,7 +93,7 @@ def _colour(views, median, k, x):
     cam, img, c = views[k]
     (u, v), = cam.project(x[None])[0]
     yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]]
-    near = _changed(img, median[c]) & ((xx - u) ** 2 + (yy - v) ** 2 < RADIUS ** 2)
+    near = _changed(img, median[c]) & ((xx + 0.5 - u) ** 2 + (yy + 0.5 - v) ** 2 < RADIUS ** 2)
     return np.median(img[near], 0) if near.sum() >= 3 else None
 
 
@@ -108,7 +110,7 @@ def _centroid(views, median, k, x, colour):
     if w.sum() < 2.0:
         return None
     yy, xx = np.mgrid[y0:y1, x0:x1]
-    p = cam.unproject(np.array([[(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()]]), z)[0]
+    p = cam.unproject(np.array([[(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()]]) + 0.5, z)[0]  # centres
     o = cam.c2w[:3, 3].astype(np.float64)
     return o, (p - o) / np.linalg.norm(p - o)
 

@@ -69,18 +69,20 @@ def _changed(img, median):
     return np.abs(img - median).sum(-1) > TAU
 
 
-def _around(centres, views):
-    """Per frame: its image, camera and the 3 x 3 pixels around the centre's projection (empty off the image)."""
-    for k, x in enumerate(centres):
+def _around(centres, views, frames=None):
+    """Per frame (`frames`, default every one): its image, camera and the 3 x 3 pixels around its centre's projection
+    (empty off the image)."""
+    for k, x in zip(range(len(centres)) if frames is None else frames, centres):
         cam, img, c = views[k]
         u, v = np.floor(cam.project(x[None])[0][0]).astype(int)  # pixel i spans [i, i + 1)
         yield img, c, (slice(max(v - 1, 0), max(v + 2, 0)), slice(max(u - 1, 0), max(u + 2, 0)))
 
 
-def on_changed(centres, views, median) -> float:
-    """The share of frames where a pixel within 1 px of the centre's projection differs from the median image."""
+def on_changed(centres, views, median, frames=None) -> float:
+    """The share of `frames` (default every one) where a pixel within 1 px of the centre's projection differs from
+    the median image."""
     return float(np.mean([img[w].size > 0 and bool(_changed(img[w], median[c][w]).any())
-                          for img, c, w in _around(centres, views)]))
+                          for img, c, w in _around(centres, views, frames)]))
 
 
 def on_colour(centres, views, colour) -> float:
@@ -185,18 +187,19 @@ def retrack(tracked, ds, background, log) -> torch.Tensor:
     for group in found_groups:
         tracked_c = tracked.positions[:, group].double().mean(1).numpy()
         x0 = tracked.canonical[group].double().mean(0).numpy()
-        if len(group) < MIN_NODES or not on_changed(x0[None], {0: views[tracked.middle]}, median):
+        if len(group) < MIN_NODES or not on_changed(x0[None], views, median, frames=[tracked.middle]):
             continue  # a lone node, or not on anything that moves at the middle frame
         colour = _colour(views, median, tracked.middle, x0)
-        before = on_changed(tracked_c, views, median), on_colour(tracked_c, views, colour)
-        if before[0] >= ON_CHANGED or before[1] >= ON_COLOUR:
+        tracked_on_changed = on_changed(tracked_c, views, median)
+        tracked_on_colour = on_colour(tracked_c, views, colour)
+        if tracked_on_changed >= ON_CHANGED or tracked_on_colour >= ON_COLOUR:
             continue  # its track stays on what moves, or on its own colour (a part that stays put in the images)
         centres = colour_track(views, median, tracked.middle, x0, tracked_c, colour)
-        after = on_colour(centres, views, colour)
-        taken = after > before[1] and after >= FOUND
-        log(f"colour-tracks: group of {len(group)} nodes, colour {[round(float(c), 2) for c in colour]}: as tracked on changed "
-            f"pixels {before[0]:.2f}, on its colour {before[1]:.2f}; by colour on its colour {after:.2f}: "
-            f"{'taken' if taken else 'kept'}")
+        found_on_colour = on_colour(centres, views, colour)
+        taken = found_on_colour > tracked_on_colour and found_on_colour >= FOUND
+        log(f"colour-tracks: group of {len(group)} nodes, colour {[round(float(c), 2) for c in colour]}: as tracked "
+            f"on changed pixels {tracked_on_changed:.2f}, on its colour {tracked_on_colour:.2f}; by colour on its "
+            f"colour {found_on_colour:.2f}: {'taken' if taken else 'kept'}")
         if taken:
             shift = torch.from_numpy(centres - tracked_c).to(positions)
             shift[tracked.middle] = 0  # the canonical frame stays where it was

@@ -44,7 +44,7 @@ EXPERIMENT:
          `node-residual-still`: only the Gaussians that take at least half their blend from nodes pinned as still
          (with one camera per time, those on what the tracking took for still), where nothing else moves them.
 
-colour-tracks  the trainer's `--motion nodes` with one camera per time, each group of moving nodes that its
+  colour-tracks  the trainer's `--motion nodes` with one camera per time, each group of moving nodes that its
          track loses (its centre off the pixels that differ from its camera's median image, and off its own colour)
          followed instead by its colour in the images (`bench/colour_tracks.py`); reads no truth.
 
@@ -402,7 +402,8 @@ def use_floor_track_scores() -> list[str]:
 
 
 def use_colour_tracks() -> list[str]:
-    """`colour-tracks`: the tracked nodes' lost groups moved by their colour in the images (`bench/colour_tracks.py`)."""
+    """`colour-tracks`: the tracked nodes' lost groups moved by their colour in the images
+    (`bench/colour_tracks.py`)."""
     import colour_tracks  # bench/colour_tracks.py, this script's neighbour
 
     import splatreel.train.flow_step as flow_step
@@ -506,7 +507,8 @@ def _keep_exact_models_native() -> None:
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
-               "floor-tracks": use_floor_track_scores, "colour-tracks": use_colour_tracks, "node-residual": use_node_residual_motion,
+               "floor-tracks": use_floor_track_scores, "colour-tracks": use_colour_tracks,
+               "node-residual": use_node_residual_motion,
                "node-residual-still": functools.partial(use_node_residual_motion, "still"),
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))},

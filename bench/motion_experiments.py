@@ -24,9 +24,9 @@ EXPERIMENT:
          for `floor-rigid`) do not move, those near them keep the recipe's own motion: what a still floor alone buys.
 
   floor-tracks  (a readout, `floor` sample only) the recipe unchanged; its control nodes' poses scored against the
-         exact motion of the part each node sits on at the middle frame, as tracked at the flow step and as learned at
-         the end of the run: mean position and rotation errors per part, and how far each part truly turned by the
-         first frame beside how far its nodes did. Joined to another experiment with '+' it scores that one's nodes:
+         exact motion of the part each node sits on at the middle frame, as tracked at the flow step (the colour
+         tracks included) and as learned at the end of the run: mean position and rotation errors per part, and how
+         far each part truly turned by the first frame beside how far its nodes did. Joined to another experiment with '+' it scores that one's nodes:
          `floor-nodes-exact+floor-tracks`.
 
   floor-nodes-exact  (oracle, `floor` sample only) the trainer's `--motion nodes` on the floor, its nodes' tracks
@@ -44,12 +44,10 @@ EXPERIMENT:
          `node-residual-still`: only the Gaussians that take at least half their blend from nodes pinned as still
          (with one camera per time, those on what the tracking took for still), where nothing else moves them.
 
-  colour-tracks  the trainer's `--motion nodes` with one camera per time, each group of moving nodes that its
-         track loses (its centre off the pixels that differ from its camera's median image, and off its own colour)
-         followed instead by its colour in the images (`bench/colour_tracks.py`); reads no truth.
-
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
-its last version is in the history (commit e78221a) and its results in docs/benchmarks.md.
+its last version is in the history (commit e78221a) and its results in docs/benchmarks.md. So is the experiment
+`colour-tracks` (commit c8d865f), now the trainer's `--colour-tracks` (`splatreel.train.colour_tracks`), which the
+`floor-nodes-exact` oracles turn off.
 
 It replaces the native conditional mean (and its quadratic term) by the carried one; the temporal opacity, the
 colour and the conditional covariance's shape stay native. The patches are this script's alone: nothing in the
@@ -329,7 +327,8 @@ def use_floor_exact_nodes(only: tuple[str, ...] | None = None, moving_only: bool
                             tracked.middle, still)
 
     flow_step.track_nodes_by_motion = exact
-    return ["--set", "motion=nodes", "--set", "flow_motion_at=0.3", "--set", "node_template=off"]
+    return ["--set", "motion=nodes", "--set", "flow_motion_at=0.3", "--set", "node_template=off",
+            "--set", "colour_tracks=False"]
 
 
 def _angle(rot: torch.Tensor) -> torch.Tensor:
@@ -367,16 +366,14 @@ def use_floor_track_scores() -> list[str]:
     from splatreel.skinned import node_poses
 
     parts = _FloorParts()
-    track = flow_step.track_nodes_by_motion
+    canonical = flow_step.to_canonical
     last: dict = {}
 
-    def scored(model, times, count, seed=0):
-        tracked = track(model, times, count, seed)
-        if tracked is not None:
-            turned = quaternion.to_rotmat(quaternion.normalize(tracked.rotations))
-            print("floor-tracks, tracked: " + _score_poses(parts, times, tracked.canonical, tracked.positions, turned,
-                                                           tracked.middle), file=sys.stderr)
-        return tracked
+    def scored(model, key_times, tracked, sigma):
+        turned = quaternion.to_rotmat(quaternion.normalize(tracked.rotations))
+        print("floor-tracks, tracked: " + _score_poses(parts, key_times.tolist(), tracked.canonical,
+                                                       tracked.positions, turned, tracked.middle), file=sys.stderr)
+        return canonical(model, key_times, tracked, sigma)
 
     dataset_model = trainer.Trainer.dataset_model
 
@@ -395,35 +392,9 @@ def use_floor_track_scores() -> list[str]:
                                                            last["positions"], last["turned"], last["middle"]),
                   file=sys.stderr)
 
-    flow_step.track_nodes_by_motion = scored
+    flow_step.to_canonical = scored
     trainer.Trainer.dataset_model = keep_last
     atexit.register(report)
-    return []
-
-
-def use_colour_tracks() -> list[str]:
-    """`colour-tracks`: the tracked nodes' lost groups moved by their colour in the images
-    (`bench/colour_tracks.py`)."""
-    import colour_tracks  # bench/colour_tracks.py, this script's neighbour
-
-    import splatreel.train.flow_step as flow_step
-    from splatreel.train.nodes import TrackedNodes
-
-    track, node_step, seen = flow_step.track_nodes_by_motion, flow_step._node_step, {}
-
-    def node_step_seen(model, ds, background, *args, **kwargs):
-        seen.update(ds=ds, background=background)
-        return node_step(model, ds, background, *args, **kwargs)
-
-    def retracked(model, times, count, seed=0):
-        tracked = track(model, times, count, seed)
-        if tracked is None:
-            return None
-        log = functools.partial(print, file=sys.stderr)
-        positions = colour_tracks.retrack(tracked, seen["ds"], seen["background"].cpu(), log)
-        return TrackedNodes(positions, tracked.rotations, tracked.middle, tracked.still)
-
-    flow_step._node_step, flow_step.track_nodes_by_motion = node_step_seen, retracked
     return []
 
 
@@ -507,7 +478,7 @@ def _keep_exact_models_native() -> None:
 
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
-               "floor-tracks": use_floor_track_scores, "colour-tracks": use_colour_tracks,
+               "floor-tracks": use_floor_track_scores,
                "node-residual": use_node_residual_motion,
                "node-residual-still": functools.partial(use_node_residual_motion, "still"),
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)

@@ -53,6 +53,7 @@ def test_an_image_matrix_of_a_bounded_object(matrix):
     assert cfg.flow_motion_at == 0.3 and "optical flow" in text and "--flow-motion-at" in text
     assert cfg.inbetween_share == 0.25 and "interpolated half-way" in text and "--inbetween-share" in text
     assert cfg.motion == "auto" and "one set of Gaussians for the whole clip" in text and "--motion" in text
+    assert not cfg.colour_tracks and "--colour-tracks" not in text  # every time has several views
     assert cfg.densify.split == "spacetime" and "--split" not in text  # several views a time: official
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
 
@@ -75,6 +76,7 @@ def test_one_camera_per_time_over_a_floor(small_floor):
     assert "quadratic motion until 30% of the run, then control nodes" in text and "--motion to change" in text
     assert cfg.node_key_every == ONE_VIEW_NODE_KEY_EVERY == 8 and "keyed every 8 frames" in text
     assert "--node-key-every to change" in text
+    assert cfg.colour_tracks and "followed by their colour in the images" in text and "--colour-tracks" in text
     assert cfg.densify.split == "space" and "split Gaussians in space only" in text and "--split" in text
     assert cfg.densify.max_gaussians == 60_000 and "densify up to 60,000 Gaussians" in text
     for pixels, cap in ((25565, 60_000), (40_000, 100_000), (80_000, 150_000)):  # 2.5 per opaque pixel
@@ -308,19 +310,22 @@ def test_flow_options_on_data_without_videos_say_they_do_nothing(small_floor, tm
     # with --motion nodes the flow step's share is when the nodes are tracked (by the model's own motion): used
     out = tmp_path / "nodes.safetensors"
     assert main(["train", str(small_floor), "--out", str(out), "--iters", "6", "--num-gaussians", "300",
-                 "--motion", "nodes", "--flow-motion-at", "0.5", "--node-key-every", "4", "--quiet"]) == 0
+                 "--motion", "nodes", "--flow-motion-at", "0.5", "--node-key-every", "4", "--colour-tracks", "off",
+                 "--quiet"]) == 0
     said = capsys.readouterr().out
     assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
-    model = load_checkpoint(out).model
-    assert model.kind == "skinned" and model.num_keys == 4  # 12 frames keyed at 0, 4, 8, 11
+    loaded = load_checkpoint(out)
+    assert loaded.model.kind == "skinned" and loaded.model.num_keys == 4  # 12 frames keyed at 0, 4, 8, 11
+    assert loaded.training["colour_tracks"] is False
     # the recipe's own: nodes at 30% of the run, keyed every 8 frames; its flow share is no news to the user
     out = tmp_path / "recipe.safetensors"
     assert main(["train", str(small_floor), "--out", str(out), "--iters", "6", "--num-gaussians", "300",
                  "--quiet"]) == 0
     said = capsys.readouterr().out
     assert "ignored" not in said and "control nodes tracked by the model's own motion" in said
-    model = load_checkpoint(out).model
-    assert model.kind == "skinned" and model.num_keys == 3  # 12 frames keyed at 0, 8, 11
+    loaded = load_checkpoint(out)
+    assert loaded.model.kind == "skinned" and loaded.model.num_keys == 3  # 12 frames keyed at 0, 8, 11
+    assert loaded.training["colour_tracks"] is True
 
 
 def test_split_option_overrides_the_recipe(small_floor, tmp_path, capsys):

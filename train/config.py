@@ -171,6 +171,9 @@ class TrainConfig:
     #: spline (`splatreel.skinned`): with one camera per time a pose keyed at every frame is fitted by one image and
     #: moves to fake its depth; keyed every few frames, each pose is held by the several cameras around it.
     node_key_every: int = 1
+    #: With one camera per time, follow the groups of nodes that the model's own motion loses by their colour in the
+    #: images (`train.colour_tracks`) at the switch to nodes.
+    colour_tracks: bool = False
     #: Weight of the as-rigid-as-possible term between neighbouring nodes (motion 'nodes'; `train.nodes.rigidity`).
     rigidity_weight: float = 0.0
     #: Adam steps of each key's rigid correction against its frame's images once the flow has tracked the nodes

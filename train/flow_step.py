@@ -4,7 +4,8 @@ What it sets depends on ``motion`` (`train.config.MOTIONS`):
 
 * linear, quadratic: every Gaussian a camera saw gets its velocity from the flow (`train.motion`);
 * nodes: control nodes, each tracked by its neighbours' flow, carry the Gaussians from then on (`train.nodes`), each
-  frame's own; with one camera per time (no flow) the nodes are tracked by the model's own motion;
+  frame's own; with one camera per time (no flow) the nodes are tracked by the model's own motion, and the groups it
+  loses are followed by their colour in the images (`train.colour_tracks`, config ``colour_tracks``);
 * auto: the nodes move by one rigid motion per key frame, fitted to the frames' images (`train.pose_fit`). Where that
   carries the middle frame's Gaussians to every frame, those alone draw the clip, static in time, carried by the
   nodes; elsewhere the velocities as for linear/quadratic.
@@ -22,6 +23,7 @@ import torch
 from splatreel.datasets import Dataset
 from splatreel.model import Gaussians4D
 
+from .colour_tracks import follow_lost_groups
 from .config import TrainConfig
 from .motion import FlowTracks, flow_tracks, flow_velocities, with_velocities
 from .nodes import TrackedNodes, middle_template, node_spacing, to_canonical, track_nodes, track_nodes_by_motion
@@ -83,8 +85,12 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
     tracked = track_nodes(model, ds, background, cfg.node_count, cfg.seed, tracks=tracks, rigid=auto)
     # no videos (one camera per time): the model's own motion tracks the nodes, and each frame keeps its Gaussians
     by_motion = tracked is None and not auto
+    colour = None
     if by_motion:
         tracked = track_nodes_by_motion(model, ds.frame_times, cfg.node_count, cfg.seed)
+        if tracked is not None and cfg.colour_tracks:  # the parts it lost, looked for in the images
+            found = follow_lost_groups(tracked, ds, background)
+            tracked, colour = found.nodes, {"groups": found.taken, "joined": found.joined}
     if tracked is None:
         return FlowStep({}, 0)
     sigma = node_spacing(tracked.canonical)
@@ -99,6 +105,8 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
                else None}
     if by_motion:
         outcome["tracked_by"] = "motion"
+    if colour is not None:
+        outcome["colour_tracks"] = colour
     if one and fit is not None:
         tracked = fit.nodes
     if auto and not one:

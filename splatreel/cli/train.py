@@ -107,6 +107,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
                         "their spline; with one camera per time a pose keyed at every frame is fitted by one image "
                         f"and can fake its depth (default: the recipe's, {ONE_VIEW_NODE_KEY_EVERY} for one camera "
                         "per time, else 1; a resumed run keeps its own)")
+    p.add_argument("--colour-tracks", choices=("on", "off"),
+                   help="with nodes and one camera per time: follow the groups of nodes that the model's own motion "
+                        "loses (a part it barely draws at the switch to nodes) by their colour in the images, "
+                        "against each camera's median image (default: the recipe's, on for one camera per time; a "
+                        "resumed run keeps its own)")
     p.add_argument("--static-share", type=fraction, metavar="F",
                    help="share of the initial Gaussians that start static, shared by every time (default 0: none; "
                         "measured on the floor sample, 0.3 brings back detail (SSIM up) at a lower PSNR)")
@@ -158,7 +163,8 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "flow_motion_at": args.flow_motion_at,
             "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion,
             "node_template": None if resumed else args.node_template,
-            "node_key_every": None if resumed else args.node_key_every}
+            "node_key_every": None if resumed else args.node_key_every,
+            "colour_tracks": None if resumed or args.colour_tracks is None else args.colour_tracks == "on"}
     if args.no_confidence:
         over["confidence"] = False
     if args.init_points:
@@ -197,8 +203,13 @@ def node_outcome_line(outcome: dict | None, motion: str) -> str | None:
     fit = "" if ratio is None or ratio == float("inf") else \
         f" (its worst frame fitted: {ratio:.2f} times its error at the middle frame)"
     if outcome.get("tracked_by") == "motion":
+        colour = outcome.get("colour_tracks") or {}
+        groups, joined = colour.get("groups", 0), colour.get("joined", 0)
+        found = "" if not groups else (
+            f"; {groups} group{'s' * (groups > 1)} of nodes it lost found again by colour in the images"
+            + (f" ({joined} node{'s' * (joined > 1)} pinned as still joined)" if joined else ""))
         return ("control nodes tracked by the model's own motion carry each frame's Gaussians (no camera films "
-                "consecutive frames: no optical flow)")
+                "consecutive frames: no optical flow)" + found)
     if outcome["template"]:
         return ("one set of Gaussians for the whole clip: one rigid motion per frame carries the middle frame's to "
                 f"every frame{fit}; --node-template off to change")

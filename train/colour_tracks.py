@@ -235,9 +235,9 @@ class ColourTracks:
 
     Attributes:
         nodes: the nodes, each group taken moved by its colour track and the pinned nodes that join it set free.
-        groups: per group looked at (lost at the middle frame's colour), its node count, whether its colour track was
-            taken, and the shares it was scored by: ``(nodes, taken, tracked_on_changed, tracked_on_colour,
-            found_on_colour)``.
+        groups: per group whose colour track was looked for (its track lost), its node count, whether the colour
+            track was taken, and the shares it was scored by: ``(nodes, taken, tracked_on_changed,
+            tracked_on_colour, found_on_colour)`` (the trainer records them: `Trainer.node_outcome`).
         joined: nodes pinned as still that joined a group taken.
     """
 

@@ -263,9 +263,9 @@ def auto_recipe(traits: DataTraits) -> tuple[TrainConfig, list[Decision]]:
             decisions.append(Decision(f"the nodes' poses keyed every {ONE_VIEW_NODE_KEY_EVERY} frames",
                                       "a pose keyed at every frame is fitted by one image and can fake its depth",
                                       "--node-key-every"))
-            # measured held out, 800 steps, seeds 0 / 1: the floor 24.82 / 24.25 dB without, 25.52 / 24.97 with (its
-            # pendulum tracked 0.73 units off without, 0.12 with); the walker filmed one camera per time takes no
-            # group (36.76 either way)
+            # measured held out, 800 steps, seeds 0 / 1 / 2: the floor 24.82 / 24.25 / 24.43 dB without, 25.52 /
+            # 24.97 / 24.40 with (seeds 0 and 1: the pendulum's nodes 0.73 units off without, 0.12 with; seed 2 had
+            # no pinned node join its group); the walker filmed one camera per time takes no group (36.76 either way)
             changes.update(colour_tracks=True)
             decisions.append(Decision("the groups of nodes that the model's motion loses followed by their colour in "
                                       "the images",

@@ -32,6 +32,7 @@ group alone 24.92 and 24.54 dB (seeds 0 and 1) against 24.82 and 24.25 without; 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -229,25 +230,40 @@ def joining(images: FrameImages, tracked: TrackedNodes, group: np.ndarray, spaci
     return np.array([j for j in pinned[near] if on_changed(images, can[j][None], [tracked.middle])], int)
 
 
+class LookedAt(NamedTuple):
+    """A group whose colour track was looked for (its track lost): its node count, whether the colour track was
+    taken, and the shares it was judged by (module doc)."""
+
+    nodes: int
+    taken: bool
+    tracked_on_changed: float
+    tracked_on_colour: float
+    found_on_colour: float
+
+
 @dataclass
 class ColourTracks:
     """What `follow_lost_groups` did.
 
     Attributes:
         nodes: the nodes, each group taken moved by its colour track and the pinned nodes that join it set free.
-        groups: per group whose colour track was looked for (its track lost), its node count, whether the colour
-            track was taken, and the shares it was scored by: ``(nodes, taken, tracked_on_changed,
-            tracked_on_colour, found_on_colour)`` (the trainer records them: `Trainer.node_outcome`).
+        groups: the groups whose colour track was looked for.
         joined: nodes pinned as still that joined a group taken.
     """
 
     nodes: TrackedNodes
-    groups: list[tuple[int, bool, float, float, float]]
+    groups: list[LookedAt]
     joined: int
 
     @property
     def taken(self) -> int:
-        return sum(g[1] for g in self.groups)
+        return sum(g.taken for g in self.groups)
+
+    def outcome(self) -> dict:
+        """JSON-able, as the trainer records it (`Trainer.node_outcome`): ``{"groups": taken, "joined": ...,
+        "looked_at": [[nodes, taken, the three shares], ...]}``."""
+        return {"groups": self.taken, "joined": self.joined,
+                "looked_at": [[g.nodes, bool(g.taken), *(round(float(x), 3) for x in g[2:])] for g in self.groups]}
 
 
 def follow_lost_groups(tracked: TrackedNodes, ds: Dataset, background: torch.Tensor) -> ColourTracks:
@@ -275,7 +291,7 @@ def follow_lost_groups(tracked: TrackedNodes, ds: Dataset, background: torch.Ten
         centres = colour_track(images, mid, x0, tracked_c, colour)
         found_on_colour = on_colour(images, centres, colour)
         taken = found_on_colour > tracked_on_colour and found_on_colour >= FOUND
-        looked.append((len(group), taken, tracked_on_changed, tracked_on_colour, found_on_colour))
+        looked.append(LookedAt(len(group), taken, tracked_on_changed, tracked_on_colour, found_on_colour))
         if not taken:
             continue
         extra = joining(images, tracked, group, spacing)

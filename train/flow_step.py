@@ -49,9 +49,8 @@ class FlowStep:
             their new (static) temporal means and std-devs.
         outcome: motion nodes and auto: what the switch to nodes decided, ``{"template": bool, "template_ratio":
             float | None}`` (`Trainer.node_outcome`), with one camera per time also ``"tracked_by": "motion"`` and
-            with `TrainConfig.colour_tracks` ``"colour_tracks": {"groups": taken, "joined": pinned nodes that joined,
-            "looked_at": [[nodes, taken, shares...], ...]}`` (`train.colour_tracks.ColourTracks`); None when no
-            switch was tried or the data has no videos.
+            with `TrainConfig.colour_tracks` ``"colour_tracks"`` (`train.colour_tracks.ColourTracks.outcome`);
+            None when no switch was tried or the data has no videos.
     """
 
     values: dict[str, torch.Tensor]
@@ -93,9 +92,7 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
         tracked = track_nodes_by_motion(model, ds.frame_times, cfg.node_count, cfg.seed)
         if tracked is not None and cfg.colour_tracks:  # the parts it lost, looked for in the images
             found = follow_lost_groups(tracked, ds, background)
-            tracked, colour = found.nodes, {"groups": found.taken, "joined": found.joined,
-                                            "looked_at": [[n, bool(t), *(round(x, 3) for x in shares)]
-                                                          for n, t, *shares in found.groups]}
+            tracked, colour = found.nodes, found.outcome()
     if tracked is None:
         return FlowStep({}, 0)
     sigma = node_spacing(tracked.canonical)

@@ -44,6 +44,12 @@ EXPERIMENT:
          `node-residual-still`: only the Gaussians that take at least half their blend from nodes pinned as still
          (with one camera per time, those on what the tracking took for still), where nothing else moves them.
 
+  late-turns  (a search, reads no truth) the recipe unchanged until 60 % of the run (`late-turns-45`: 45 %); then
+         each group of at least 16 moving nodes has its turn at every frame searched by render and compare against
+         its own sharp middle-frame Gaussians, outwards from the middle frame, and each node key takes the searched
+         turn where it draws the frames nearest that key better than the learned poses; the group's Gaussians are
+         moved in the canonical frame so that each stays where it was at its own time (`bench/late_turns.py`).
+
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md. So is the experiment
 `colour-tracks` (commit c8d865f), now the trainer's `--colour-tracks` (`splatreel.train.colour_tracks`), which the
@@ -476,6 +482,24 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
+def use_late_turns(at: float = 0.6) -> list[str]:
+    """`late-turns`: at share `at` of the run, each rigid group of moving nodes has its turns searched by render and
+    compare against its sharp middle-frame Gaussians, and takes them where they draw better (`bench/late_turns.py`)."""
+    import splatreel.train.trainer as trainer
+    from late_turns import refit_turns
+
+    step = trainer.Trainer.train_step
+
+    def train_step(self):
+        out = step(self)
+        if self.nodes is not None and self.step == round(at * self.cfg.iters):
+            refit_turns(self, self.cfg.seed)
+        return out
+
+    trainer.Trainer.train_step = train_step
+    return []
+
+
 EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor-rigid": use_floor_rigid_oracle,
                "floor-nodes-exact": use_floor_exact_nodes, "floor-still": use_floor_still_oracle,
                "floor-tracks": use_floor_track_scores,
@@ -483,7 +507,8 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor
                "node-residual-still": functools.partial(use_node_residual_motion, "still"),
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))},
-               "floor-nodes-exact-pendulum-moving": functools.partial(use_floor_exact_nodes, ("pendulum",), True)}
+               "floor-nodes-exact-pendulum-moving": functools.partial(use_floor_exact_nodes, ("pendulum",), True),
+               "late-turns": use_late_turns, "late-turns-45": functools.partial(use_late_turns, 0.45)}
 
 
 def main() -> None:

@@ -48,6 +48,7 @@ from splatreel.train import strategy
 from splatreel.train.colour_tracks import node_groups
 from splatreel.train.data import downscale_view
 from splatreel.train.evaluate import view_target
+from splatreel.train.motion import nearest_key
 from splatreel.train.nodes import TrackedNodes
 
 #: Fewest nodes a group needs for a search.
@@ -76,6 +77,85 @@ def _rigid(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     return r[0], c0[0], c1[0]
 
 
+def _search(error, learned: dict, frames: int, mid: int, rng: np.random.Generator) -> dict:
+    """Each frame's turn since the middle frame ``{k: [3, 3]}``, searched outwards from it (module doc): `error(turn,
+    k)` scores a turn at frame k, `learned` holds the learned poses' rigid turns (a candidate increment)."""
+    turns = {mid: np.eye(3)}
+    for d in (1, -1):
+        k, rate = mid, np.zeros(3)
+        while 0 <= k + d < frames:
+            base = turns[k]
+            ahead = [x for x in range(k + d, k + d * (POOL + 1), d) if 0 <= x < frames]
+
+            def score(inc: np.ndarray) -> float:
+                return float(np.mean([error(_matrix(inc * abs(x - k)) @ base, x) for x in ahead]))
+            best = min(((score(c), c) for c in (rate, np.zeros(3), _rotvec(learned[k + d] @ base.T))),
+                       key=lambda sc: sc[0])
+            for spread, count in ROUNDS:
+                around = best[1]
+                for _ in range(count):
+                    c = around + rng.normal(size=3) * np.radians(spread)
+                    s = score(c)
+                    if s < best[0]:
+                        best = (s, c)
+            rate = best[1]
+            turns[k + d] = _matrix(rate) @ base
+            k += d
+    return turns
+
+
+def _keys_taken(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> list[bool]:
+    """Per key, whether it takes the searched turns: they draw the frames nearest it better (`PER_KEY`), or all
+    frames of the clip."""
+    if not PER_KEY:
+        return [bool(searched.sum() < kept.sum())] * len(keys)
+    near = nearest_key(torch.arange(len(searched), dtype=torch.float64), torch.tensor(keys, dtype=torch.float64))
+    return [bool(searched[near == ki].sum() < kept[near == ki].sum()) for ki in range(len(keys))]
+
+
+def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times: torch.Tensor, times: list[float],
+            canonical: torch.Tensor, group: np.ndarray, own: torch.Tensor) -> tuple[dict, torch.Tensor]:
+    """The canonical-frame values (means and the 4D shape's tensors, for every Gaussian) that keep each Gaussian of
+    `own` about where `skinned` (the old poses) drew it at its own frame once the nodes have the new key poses
+    `positions`, `rotations`; and how far each of `own` then lands from there."""
+    g4 = skinned.gaussians
+    frame = nearest_key(g4.t_means, torch.tensor(times))
+    changed = torch.nonzero(own)[:, 0]
+    means = g4.means.detach().clone().double()
+    cov4 = g4.covariance_4d().double()
+    here = canonical[group].double().numpy()
+    worlds = {}
+    for k in frame[changed].unique().tolist():
+        rows = changed[frame[changed] == k]
+        p_old, _ = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[k])
+        p_new, _ = node_poses(key_times, positions.float(), rotations.float(), times[k])
+        # the carry maps the canonical frame to frame k: its rigid fit over the group's nodes, before and after
+        r_old, _, _ = _rigid(here, p_old[group].double().numpy())
+        r_new, a_new, b_new = _rigid(here, p_new[group].double().numpy())
+        # where the old poses carried them (the learned poses are no rigid motion, so not by the fit)
+        (world, _), = skinned.centres([times[k]])
+        worlds[k] = world[rows].double()
+        means[rows] = (worlds[k] - torch.from_numpy(b_new)) @ torch.from_numpy(r_new) + torch.from_numpy(a_new)
+        q = torch.eye(4, dtype=torch.float64)
+        q[:3, :3] = torch.from_numpy(r_new.T @ r_old)
+        cov4[rows] = q @ cov4[rows] @ q.T
+    scales, t_scales, q_l, q_r = decompose_covariance_4d(cov4[changed], g4.rotation_convention)
+    values = {"means": means.float(), "log_scales": g4.log_scales.clone(), "log_t_scales": g4.log_t_scales.clone(),
+              "quats_l": g4.quats_l.clone(), "quats_r": g4.quats_r.clone()}
+    values["log_scales"][changed] = scales.clamp_min(1e-12).log().float()
+    values["log_t_scales"][changed] = t_scales.clamp_min(1e-12).log().float()
+    values["quats_l"][changed] = q_l.float()
+    values["quats_r"][changed] = q_r.float()
+    after = replace(skinned, gaussians=replace(g4, **{k: v.to(g4.means) for k, v in values.items()}),
+                    node_positions=positions.float(), node_rotations=rotations.float())
+    moved = torch.zeros(len(changed), dtype=torch.float64)
+    for k, world in worlds.items():
+        sel = frame[changed] == k
+        (b, _), = after.centres([times[k]])
+        moved[sel] = (world - b[changed[sel]].double()).norm(dim=1)
+    return values, moved
+
+
 def refit_turns(trainer, seed: int = 0) -> list[dict]:
     """Search each rigid group's turns on `trainer`'s current model and apply those that draw better (module doc).
     Returns what happened per group searched."""
@@ -89,43 +169,36 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
     keys = trainer._node_keys()
     key_times = nodes.key_times.cpu()
     model = trainer.model()
-    g4 = model.gaussians.detach().to("cpu")
     canonical = nodes.canonical.cpu()
     still = None if nodes.still is None else nodes.still.cpu()
+    # node_groups reads only the canonical positions and the still flags of the nodes it is given
     groups = node_groups(TrackedNodes(canonical[None].double(), torch.zeros(1, len(canonical), 4), 0, still),
                          nodes.sigma)
     positions = nodes.positions.detach().cpu().double()
     rotations = nodes.rotations.detach().cpu().double()
-
-    def poses(pos, rot, t):
-        return node_poses(key_times, pos.float(), rot.float(), t)
-
+    frame_of = nearest_key(torch.tensor([v.time for v in ds.train]), torch.tensor(times)).tolist()
     views = {}
-    for v in ds.train:
-        k = int(np.argmin(np.abs(np.asarray(times) - v.time)))
+    for v, k in zip(ds.train, frame_of):
         small = downscale_view(v, max(1, round(min(v.size) / FIT_SIZE)))
         views[k] = (small.camera, view_target(small, bg)[0])
-    _, nearest = nearest_nodes(canonical, g4.means, 1)
-    nearest = nearest[:, 0]
-    skinned = replace(model, gaussians=g4, node_positions=positions.float(), node_rotations=rotations.float())
+    skinned = replace(model, gaussians=model.gaussians.detach().to("cpu"), node_positions=positions.float(),
+                      node_rotations=rotations.float())
+    _, nearest = nearest_nodes(canonical, skinned.gaussians.means, 1)
     rng = np.random.default_rng(seed)
     report = []
     for group in groups:
         if len(group) < MIN_NODES:
             continue
-        in_group = torch.zeros(len(canonical), dtype=torch.bool)
-        in_group[torch.from_numpy(group)] = True
-        own = in_group[nearest]
+        own = torch.isin(nearest[:, 0], torch.from_numpy(group))
         with torch.no_grad():
-            p_mid, _ = poses(positions, rotations, times[mid])
+            p_mid, r_mid = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[mid])
             c_mid = p_mid[group].double().mean(0).numpy()
             s_mid = skinned.slice(times[mid])
             tpl = s_mid.select(own & s_mid.visible)
             backdrop, learned, centre = {}, {}, {}
             for k in range(frames):
-                s = skinned.slice(times[k])
-                backdrop[k] = rasterize(s.select(~own), views[k][0], bg).rgb
-                p_k, _ = poses(positions, rotations, times[k])
+                backdrop[k] = rasterize(skinned.slice(times[k]).select(~own), views[k][0], bg).rgb
+                p_k, _ = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[k])
                 r, a, b = _rigid(p_mid[group].double().numpy(), p_k[group].double().numpy())
                 learned[k], centre[k] = r, b + r @ (c_mid - a)  # where the group's middle centre goes
 
@@ -137,95 +210,31 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
             out = rasterize(g, cam, (0.0, 0.0, 0.0))
             return float(((out.rgb + (1 - out.alpha[..., None]) * backdrop[k]) - target).abs().mean())
 
-        turns = {mid: np.eye(3)}
         with torch.no_grad():
-            for d in (1, -1):
-                k, rate = mid, np.zeros(3)
-                while 0 <= k + d < frames:
-                    base = turns[k]
-                    ahead = [x for x in range(k + d, k + d * (POOL + 1), d) if 0 <= x < frames]
-
-                    def score(inc: np.ndarray) -> float:
-                        return float(np.mean([error(_matrix(inc * abs(x - k)) @ base, x) for x in ahead]))
-                    best = min(((score(c), c) for c in (rate, np.zeros(3), _rotvec(learned[k + d] @ base.T))),
-                               key=lambda sc: sc[0])
-                    for spread, count in ROUNDS:
-                        centre_inc = best[1]
-                        for _ in range(count):
-                            c = centre_inc + rng.normal(size=3) * np.radians(spread)
-                            s = score(c)
-                            if s < best[0]:
-                                best = (s, c)
-                    rate = best[1]
-                    turns[k + d] = _matrix(rate) @ base
-                    k += d
+            turns = _search(error, learned, frames, mid, rng)
             searched = np.array([error(turns[k], k) for k in range(frames)])
             kept = np.array([error(learned[k], k) for k in range(frames)])
-        # per key: the searched turn where it draws the frames nearest that key better than the learned poses (far
-        # from the middle frame a search can lose its part, and the frames there are better left as they are)
-        near_key = np.abs(np.asarray(keys)[None] - np.arange(frames)[:, None]).argmin(1)
-        take_key = [bool(PER_KEY and searched[near_key == ki].sum() < kept[near_key == ki].sum()) or
-                    (not PER_KEY and searched.sum() < kept.sum()) for ki in range(len(keys))]
-        taken = any(take_key)
-        report.append({"nodes": len(group), "gaussians": int(own.sum()), "taken": bool(taken),
-                       "keys_taken": [keys[ki] for ki in range(len(keys)) if take_key[ki]],
+        take_key = _keys_taken(searched, kept, keys)
+        report.append({"nodes": len(group), "gaussians": int(own.sum()), "taken": any(take_key),
+                       "keys_taken": [k for k, take in zip(keys, take_key) if take],
                        "error_searched": round(float(searched.mean()), 5),
                        "error_learned": round(float(kept.mean()), 5)})
-        if not taken:
+        if not any(take_key):
             continue
         with torch.no_grad():
-            old_positions, old_rotations = positions.clone(), rotations.clone()
-            _, r_mid = poses(positions, rotations, times[mid])
             for ki, k in enumerate(keys):
-                if not take_key[ki]:
-                    continue
-                r = torch.from_numpy(turns[k])
-                positions[ki, group] = (p_mid[group].double() - torch.from_numpy(c_mid)) @ r.T \
-                    + torch.from_numpy(centre[k])
-                rotations[ki, group] = quaternion.from_rotmat(r[None] @ r_mid[group].double())
-            # every Gaussian of the group stays where it was at its own time
-            t_frame = torch.from_numpy(np.abs(g4.t_means.double().numpy()[:, None] - np.asarray(times)[None])
-                                       .argmin(1))
-            means = g4.means.detach().clone().double()
-            cov4 = g4.covariance_4d().double()
-            changed = torch.nonzero(own)[:, 0]
-            for k in t_frame[changed].unique().tolist():
-                rows = changed[t_frame[changed] == k]
-                p_old, _ = poses(old_positions, old_rotations, times[k])
-                p_new, _ = poses(positions, rotations, times[k])
-                # the carry maps the canonical frame to frame k: its rigid fit over the group's nodes, before and after
-                here = canonical[group].double().numpy()
-                r_old, a_old, b_old = _rigid(here, p_old[group].double().numpy())
-                r_new, a_new, b_new = _rigid(here, p_new[group].double().numpy())
-                # where the old poses carried them (the learned poses are no rigid motion, so not by the fit)
-                (world, _), = skinned.centres([times[k]])
-                world = world[rows].double()
-                means[rows] = (world - torch.from_numpy(b_new)) @ torch.from_numpy(r_new) + torch.from_numpy(a_new)
-                q = torch.eye(4, dtype=torch.float64)
-                q[:3, :3] = torch.from_numpy(r_new.T @ r_old)
-                cov4[rows] = q @ cov4[rows] @ q.T
-            scales, t_scales, q_l, q_r = decompose_covariance_4d(cov4[changed], g4.rotation_convention)
-            values = {"means": means.float(), "log_scales": g4.log_scales.clone(),
-                      "log_t_scales": g4.log_t_scales.clone(), "quats_l": g4.quats_l.clone(),
-                      "quats_r": g4.quats_r.clone()}
-            values["log_scales"][changed] = scales.clamp_min(1e-12).log().float()
-            values["log_t_scales"][changed] = t_scales.clamp_min(1e-12).log().float()
-            values["quats_l"][changed] = q_l.float()
-            values["quats_r"][changed] = q_r.float()
-            strategy.replace_values(trainer.params, trainer.optimizer,
-                                    {k: v.to(trainer.device) for k, v in values.items()})
-            before = skinned
-            g4 = replace(g4, **{k: v.to(g4.means) for k, v in values.items()})
-            skinned = replace(skinned, gaussians=g4, node_positions=positions.float(),
-                              node_rotations=rotations.float())
-            moved = torch.zeros(len(changed), dtype=torch.float64)
-            for k in t_frame[changed].unique().tolist():  # how far each stays from where it was at its own time
-                sel = t_frame[changed] == k
-                (a, _), = before.centres([times[k]])
-                (b, _), = skinned.centres([times[k]])
-                moved[sel] = (a[changed[sel]] - b[changed[sel]]).double().norm(dim=1)
-            report[-1]["moved_median"] = round(float(moved.median()), 4)
-            report[-1]["moved_p95"] = round(float(moved.quantile(0.95)), 4)
+                if take_key[ki]:  # the group turns rigidly about its centre from its middle-frame pose
+                    r = torch.from_numpy(turns[k])
+                    positions[ki, group] = (p_mid[group].double() - torch.from_numpy(c_mid)) @ r.T \
+                        + torch.from_numpy(centre[k])
+                    rotations[ki, group] = quaternion.from_rotmat(r[None] @ r_mid[group].double())
+            values, moved = _reseat(skinned, positions, rotations, key_times, times, canonical, group, own)
+        strategy.replace_values(trainer.params, trainer.optimizer,
+                                {k: v.to(trainer.device) for k, v in values.items()})
+        skinned = replace(skinned, gaussians=replace(skinned.gaussians, **values),
+                          node_positions=positions.float(), node_rotations=rotations.float())
+        report[-1]["moved_median"] = round(float(moved.median()), 4)
+        report[-1]["moved_p95"] = round(float(moved.quantile(0.95)), 4)
     if any(r["taken"] for r in report):
         with torch.no_grad():
             nodes.positions.copy_(positions.to(nodes.positions))

@@ -489,10 +489,13 @@ def use_late_turns(at: float = 0.6) -> list[str]:
     from late_turns import refit_turns
 
     step = trainer.Trainer.train_step
+    done: set[int] = set()
 
     def train_step(self):
         out = step(self)
-        if self.nodes is not None and self.step == round(at * self.cfg.iters):
+        # once, at the schedule's position (a budgeted run's steps follow the clock), as the flow step is due
+        if self.nodes is not None and id(self) not in done and self.vstep() >= at * self.cfg.iters:
+            done.add(id(self))
             refit_turns(self, self.cfg.seed)
         return out
 

@@ -17,8 +17,9 @@ model, `splatreel sample NAME --model`, on the same test views), `needle_share` 
 axis ratio is above 10, on the 4D Gaussians' spatial scales), `sliced_needle_share` (the same for the 3D Gaussians
 that slicing shows), `test_per_view` (each test view's camera, time, PSNR and `at_frame`: whether its time is a
 training frame's or in between), the decisions of the recipe, `nodes` (with control nodes, what the switch to them
-decided: `template`, one set of Gaussians for the clip; `template_ratio`, the carried template's worst loss over a
-frame over its loss at the middle frame), what the alpha-agreement test said, and the baselines' PSNR on the same test views:
+decided: `template`, one set of Gaussians for the clip; `template_ratio`, the carried template's worst colour loss over
+a frame over its loss at the middle frame; `silhouette_ratio`, the same of its alpha, which decides where the images
+have alpha), what the alpha-agreement test said, and the baselines' PSNR on the same test views:
 `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.

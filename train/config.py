@@ -181,7 +181,8 @@ class TrainConfig:
     node_fit_steps: int = 40
     #: Motion 'nodes': keep only the middle frame's Gaussians, drawn at every time and carried by the nodes, one set
     #: for the whole clip ('on'); never ('off'); or when the nodes carry them to every key frame and they draw it
-    #: within `train.pose_fit.TEMPLATE_FIT` times their error at the middle frame ('auto').
+    #: nearly as well as the middle frame ('auto': `train.pose_fit.template_fits`, by the silhouette where the images
+    #: have alpha, by the colour otherwise).
     node_template: str = "auto"
     #: Write a checkpoint every this many steps (0: only at the end and on Ctrl-C).
     checkpoint_every: int = 0

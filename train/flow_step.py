@@ -48,7 +48,8 @@ class FlowStep:
         keep: ``[N]`` with one set of Gaussians for the clip, the ones that stay (after `values`), and `kept_values`
             their new (static) temporal means and std-devs.
         outcome: motion nodes and auto: what the switch to nodes decided, ``{"template": bool, "template_ratio":
-            float | None}`` (`Trainer.node_outcome`), with one camera per time also ``"tracked_by": "motion"`` and
+            float | None, "silhouette_ratio": float | None}`` (`Trainer.node_outcome`; the ratios of
+            `train.pose_fit.FittedTracks`, None when not measured), with one camera per time also ``"tracked_by": "motion"`` and
             with `TrainConfig.colour_tracks` ``"colour_tracks"`` (`train.colour_tracks.ColourTracks.outcome`);
             None when no switch was tried or the data has no videos.
     """
@@ -60,6 +61,11 @@ class FlowStep:
     keep: torch.Tensor | None = None
     kept_values: dict[str, torch.Tensor] | None = None
     outcome: dict | None = None
+
+
+def _rounded(ratio: float | None) -> float | None:
+    """A ratio for the checkpoint's JSON metadata: None for none, or for inf (nothing was fitted)."""
+    return round(ratio, 3) if ratio is not None and math.isfinite(ratio) else None
 
 
 def flow_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: TrainConfig,
@@ -102,9 +108,9 @@ def _node_step(model: Gaussians4D, ds: Dataset, background: torch.Tensor, cfg: T
                          give_up=cfg.node_template == "auto")
     one = not by_motion and (cfg.node_template == "on" or
                              (cfg.node_template == "auto" and fit is not None and template_fits(fit)))
-    ratio = None if fit is None else fit.template_ratio()  # inf when nothing was fitted: none (the metadata is JSON)
-    outcome = {"template": one, "template_ratio": round(ratio, 3) if ratio is not None and math.isfinite(ratio)
-               else None}
+    ratio = None if fit is None else fit.template_ratio()
+    silhouette = None if fit is None else fit.silhouette_ratio()
+    outcome = {"template": one, "template_ratio": _rounded(ratio), "silhouette_ratio": _rounded(silhouette)}
     if by_motion:
         outcome["tracked_by"] = "motion"
     if colour is not None:

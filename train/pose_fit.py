@@ -19,11 +19,16 @@ outwards:
 On the spinner the carried template then stays within 1-2 % of the box's size of the truth at every frame (the
 flow's nodes: up to 25 %), for about 10 s of a 5-minute run. How well the carried template draws each frame, beside
 how well it draws its own (middle) frame, says whether one set serves the clip (`template_fits`): it does for a rigid
-object, not for one whose parts move apart or bend. The template is held to itself rather than to each frame's own
-Gaussians because those are a shifting yardstick: early in a run the middle frame's opaque Gaussians are few (on the
-spinner at a third of the usual steps the template drew its own frame 2.5 times worse than the frame's slice, and
-was refused for it), and on a deforming subject the slice at a key frame also draws its neighbours' Gaussians, which
-the template leaves out (the wave's template drew its own frame 0.7 times the slice's error).
+object, not for one whose parts move apart or bend. Where the training images have alpha, that is judged by the
+silhouette (the mean absolute alpha error), not the colour: a rigid object lit by a light fixed in the world changes
+its shading as it turns, which no rigid motion of fixed colours draws, and the colour ratio grows as the template
+sharpens (the spinner's: 1.09 at 130 steps, 1.31 at 499, 1.42 in a 5-minute run that was refused for it; 1.35 with
+the box's exact poses), while its silhouette ratio stays near 1 (1.04-1.07) and the bending samples' reach 3.2-8.7.
+The template is held to itself rather than to each frame's own Gaussians because those are a shifting yardstick:
+early in a run the middle frame's opaque Gaussians are few (on the spinner at a third of the usual steps the template
+drew its own frame 2.5 times worse than the frame's slice, and was refused for it), and on a deforming subject the
+slice at a key frame also draws its neighbours' Gaussians, which the template leaves out (the wave's template drew
+its own frame 0.7 times the slice's error).
 """
 
 from __future__ import annotations
@@ -56,11 +61,18 @@ FIT_LR = 0.02
 #: the opaque ones: early in a run few are opaque (on the spinner at a third of the usual steps 5 of 3k above 0.3),
 #: and a template that draws nothing draws every frame equally badly.
 TEMPLATE_OPACITY = 0.01
-#: The carried template draws the whole clip when its loss at every key frame is at most this many times its loss at
-#: the middle frame (its own). Measured at the flow step of the recipe run for 400 steps: the rigid spinner 1.20 at
-#: worst (1.09 when the switch came at a third of the steps); the walker, wave, morph and texture 1.19-1.80 at the
-#: first key beside the middle and 1.46-2.37 at the second, 1.6-4.7 at the ends.
+#: Without alpha: the carried template draws the whole clip when its colour error at every key frame is at most this
+#: many times its error at the middle frame (its own). Measured at the flow step of the recipe run for 400 steps: the
+#: rigid spinner 1.20 at worst (1.09 when the switch came at a third of the steps); the walker, wave, morph and
+#: texture 1.19-1.80 at the first key beside the middle and 1.46-2.37 at the second, 1.6-4.7 at the ends.
 TEMPLATE_FIT = 1.4
+#: With alpha: the same bound on the silhouette (alpha) error. Measured with the fitted poses at the flow step of the
+#: recipe run for 499 steps: the spinner 1.07 at worst (1.04 at 130 steps, 1.07 at 1000); the wave, morph, texture and
+#: walker 1.18-2.31 at the keys beside the middle, 1.59-3.67 at the next, 3.2-8.7 at worst.
+SILHOUETTE_FIT = 1.5
+#: With alpha, the colour ratio is still held under this looser bound: a subject whose colours change within a still
+#: silhouette (a turning ball whose pattern changes) is not one rigid set. The spinner's colour ratio: 1.09-1.42.
+COLOUR_BOUND = 2.0
 
 
 @dataclass
@@ -69,25 +81,49 @@ class FittedTracks:
 
     Attributes:
         nodes: the nodes, all moving by the fitted rigid motion of each key (`train.nodes.TrackedNodes`).
-        template_loss: ``[F]`` mean absolute error of the template carried to each key frame, over its views (inf
-            at the keys a fit gave up before); at the middle key (``nodes.middle``) its own frame's.
+        template_loss: ``[F]`` mean absolute colour error of the template carried to each key frame, over its views
+            (inf at the keys a fit gave up before); at the middle key (``nodes.middle``) its own frame's.
+        silhouette_loss: ``[F]`` the same of its alpha, where every training view has alpha and the subject does not
+            fill them (the measure `template_fits` judges by); None otherwise.
     """
 
     nodes: TrackedNodes
     template_loss: np.ndarray
+    silhouette_loss: np.ndarray | None = None
 
     def template_ratio(self) -> float:
-        """The worst fitted key's template loss over the template's loss at its own (middle) frame (keys a fit gave
-        up before are left out; inf when none was fitted)."""
-        fitted = np.isfinite(self.template_loss)
-        own = self.template_loss[self.nodes.middle]
-        return float(np.max(self.template_loss[fitted]) / max(own, 1e-8)) if fitted.any() and np.isfinite(own) \
-            else float("inf")
+        """The worst fitted key's colour error over the template's at its own (middle) frame (keys a fit gave up
+        before are left out; inf when none was fitted)."""
+        return _worst_ratio(self.template_loss, self.nodes.middle)
+
+    def silhouette_ratio(self) -> float | None:
+        """`template_ratio` of the silhouette error; None without one."""
+        return None if self.silhouette_loss is None else _worst_ratio(self.silhouette_loss, self.nodes.middle)
+
+
+def _worst_ratio(loss: np.ndarray, middle: int) -> float:
+    fitted = np.isfinite(loss)
+    own = loss[middle]
+    return float(np.max(loss[fitted]) / max(own, 1e-8)) if fitted.any() and np.isfinite(own) else float("inf")
+
+
+def _key_fits(colour: float, silhouette: float | None, own_colour: float, own_silhouette: float | None) -> bool:
+    """Whether one key's carried template draws it well enough beside its own frame (`template_fits`)."""
+    if silhouette is None:
+        return colour <= TEMPLATE_FIT * own_colour
+    return silhouette <= SILHOUETTE_FIT * max(own_silhouette, 1e-8) and colour <= COLOUR_BOUND * own_colour
 
 
 def template_fits(fit: FittedTracks) -> bool:
-    """Whether the carried template draws every key frame within `TEMPLATE_FIT` of its loss at its own frame."""
-    return bool(np.isfinite(fit.template_loss).all()) and fit.template_ratio() <= TEMPLATE_FIT
+    """Whether the carried template draws every key frame nearly as well as its own: within `SILHOUETTE_FIT` of its
+    silhouette error there (and `COLOUR_BOUND` of its colour error) where the images have alpha, within
+    `TEMPLATE_FIT` of its colour error otherwise."""
+    if not np.isfinite(fit.template_loss).all():
+        return False
+    silhouette = fit.silhouette_ratio()
+    if silhouette is None:
+        return fit.template_ratio() <= TEMPLATE_FIT
+    return silhouette <= SILHOUETTE_FIT and fit.template_ratio() <= COLOUR_BOUND
 
 
 def _skew(w: torch.Tensor) -> torch.Tensor:
@@ -105,7 +141,29 @@ def _template(model: Gaussians4D, times: list[float], middle: int) -> Gaussians3
 
 
 def _mean_error(gaussians: Gaussians3D, views: list, background: torch.Tensor) -> torch.Tensor:
-    return sum((rasterize(gaussians, cam, background).rgb - target).abs().mean() for cam, target in views) / len(views)
+    return sum((rasterize(gaussians, cam, background).rgb - target).abs().mean() for cam, target, _ in views) / len(views)
+
+
+def _errors(gaussians: Gaussians3D, views: list, background: torch.Tensor, silhouette: bool
+            ) -> tuple[float, float | None]:
+    """(mean absolute colour error, the same of alpha when `silhouette`, else None) over `views`."""
+    colour = alpha = 0.0
+    for cam, target, target_alpha in views:
+        out = rasterize(gaussians, cam, background)
+        colour += float((out.rgb - target).abs().mean())
+        if silhouette:
+            alpha += float((out.alpha - target_alpha).abs().mean())
+    return colour / len(views), alpha / len(views) if silhouette else None
+
+
+#: The silhouette is the measure only where the subject leaves this share of the middle frame's pixels transparent
+#: (alpha below a half): an alpha that is opaque everywhere draws no silhouette.
+MIN_TRANSPARENT = 0.01
+
+
+def _transparent_share(views: list) -> float:
+    """The share of the views' pixels whose target alpha is below a half."""
+    return float(torch.cat([(alpha < 0.5).flatten() for _, _, alpha in views]).float().mean()) if views else 0.0
 
 
 def _rigid_start(tracked: TrackedNodes, positions: torch.Tensor, turns: torch.Tensor, k: int, step: int
@@ -122,9 +180,9 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
     """The rigid motion of `tracked` (the flow's nodes) at every key, corrected by `steps` Adam steps against that
     frame's training images (module doc), as nodes that all move alike; `model` on `ds`'s times. Non-finite flow
     tracks, or a template of fewer than 4 Gaussians, give `tracked` unchanged and an infinite template loss (the
-    template does not fit). `give_up`: stop at the first key where the
-    template does not fit (`TEMPLATE_FIT`; the keys not fitted get an infinite template loss), as a trainer that only
-    wants the template when it fits can: on data that bends, the first key or two already tell."""
+    template does not fit). `give_up`: stop at the first key the template does not fit (`template_fits`; the keys
+    not fitted get infinite losses), as a trainer that only wants the template when it fits can: on data that bends,
+    the first key or two already tell."""
     rng = np.random.default_rng(seed)
     model = model.detach().to("cpu")
     background = background.detach().cpu().to(torch.float32)
@@ -141,7 +199,9 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
     for v in ds.train:
         if v.time in rank:
             small = downscale_view(v, max(1, round(min(v.size) / FIT_SIZE)))
-            views[rank[v.time]].append((small.camera, view_target(small, background)[0]))
+            views[rank[v.time]].append((small.camera, *view_target(small, background)))
+    silhouette = all(alpha is not None for vs in views for _, _, alpha in vs) and _transparent_share(views[mid]) \
+        >= MIN_TRANSPARENT
 
     def carried(positions: torch.Tensor, turns: torch.Tensor) -> Gaussians3D:
         means, cov = carry(tpl.means, tpl.covariances, *skin, canonical, positions.to(torch.float32),
@@ -152,8 +212,17 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
     turns = quaternion.to_rotmat(quaternion.normalize(tracked.rotations.reshape(-1, 4))).reshape(
         *tracked.rotations.shape[:2], 3, 3)
     template_loss = np.full(len(times), np.inf)
-    with torch.no_grad():
-        template_loss[mid] = float(_mean_error(carried(positions[mid], turns[mid]), views[mid], background))
+    silhouette_loss = np.full(len(times), np.inf) if silhouette else None
+
+    def record(k: int) -> tuple[float, float | None]:
+        with torch.no_grad():
+            colour, alpha = _errors(carried(positions[k], turns[k]), views[k], background, silhouette)
+        template_loss[k] = colour
+        if silhouette_loss is not None:
+            silhouette_loss[k] = alpha
+        return colour, alpha
+
+    own = record(mid)
     order = [(1, k) for k in range(mid + 1, len(times))] + [(-1, k) for k in range(mid - 1, -1, -1)]
     for step, k in order:
         p0, r0 = _rigid_start(tracked, positions[k - step], turns[k - step], k, step)
@@ -178,8 +247,7 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
             c = centre.to(positions.dtype)
             positions[k] = (p0 - c) @ r.T + c + radius * shift.to(positions.dtype)
             turns[k] = r @ r0
-            template_loss[k] = float(_mean_error(carried(positions[k], turns[k]), views[k], background))
-        if give_up and template_loss[k] > TEMPLATE_FIT * template_loss[mid]:
+        if not _key_fits(*record(k), *own) and give_up:
             break
     rotations = quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(tracked.rotations.shape)
-    return FittedTracks(TrackedNodes(positions, rotations, mid), template_loss)
+    return FittedTracks(TrackedNodes(positions, rotations, mid), template_loss, silhouette_loss)

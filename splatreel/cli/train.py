@@ -199,9 +199,10 @@ def node_outcome_line(outcome: dict | None, motion: str) -> str | None:
     """What the switch to control nodes decided (`Trainer.node_outcome`), in one line; None when there was none."""
     if outcome is None:
         return None
-    ratio = outcome["template_ratio"]
+    silhouette, colour = outcome.get("silhouette_ratio"), outcome["template_ratio"]
+    ratio, measure = (silhouette, "silhouette error") if silhouette is not None else (colour, "error")
     fit = "" if ratio is None or ratio == float("inf") else \
-        f" (its worst frame fitted: {ratio:.2f} times its error at the middle frame)"
+        f" (its worst frame fitted: {ratio:.2f} times its {measure} at the middle frame)"
     if outcome.get("tracked_by") == "motion":
         colour = outcome.get("colour_tracks") or {}
         groups, joined = colour.get("groups", 0), colour.get("joined", 0)

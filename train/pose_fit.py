@@ -68,11 +68,11 @@ TEMPLATE_OPACITY = 0.01
 TEMPLATE_FIT = 1.4
 #: With alpha: the same bound on the silhouette (alpha) error. Measured with the fitted poses at the flow step of the
 #: recipe run for 499 steps: the spinner 1.07 at worst (1.04 at 130 steps, 1.07 at 1000); the wave, morph, texture and
-#: walker 1.18-2.31 at the keys beside the middle, 1.59-3.67 at the next, 3.2-8.7 at worst.
+#: walker 1.18-2.31 at the keys beside the middle, 1.59-3.67 at the next, 3.2-8.7 at worst. The colour is not held
+#: to a bound as well: for a rigid subject under a fixed light its ratio has no ceiling (the spinner's grows as the
+#: template sharpens: 1.50 in a 5-minute run), so a subject whose pattern changes inside a still silhouette is taken
+#: for one set (`--node-template off` keeps each frame's own).
 SILHOUETTE_FIT = 1.5
-#: With alpha, the colour ratio is still held under this looser bound: a subject whose colours change within a still
-#: silhouette (a turning ball whose pattern changes) is not one rigid set. The spinner's colour ratio: 1.09-1.42.
-COLOUR_BOUND = 2.0
 
 
 @dataclass
@@ -111,19 +111,18 @@ def _key_fits(colour: float, silhouette: float | None, own_colour: float, own_si
     """Whether one key's carried template draws it well enough beside its own frame (`template_fits`)."""
     if silhouette is None:
         return colour <= TEMPLATE_FIT * own_colour
-    return silhouette <= SILHOUETTE_FIT * max(own_silhouette, 1e-8) and colour <= COLOUR_BOUND * own_colour
+    return silhouette <= SILHOUETTE_FIT * max(own_silhouette, 1e-8)
 
 
 def template_fits(fit: FittedTracks) -> bool:
     """Whether the carried template draws every key frame nearly as well as its own: within `SILHOUETTE_FIT` of its
-    silhouette error there (and `COLOUR_BOUND` of its colour error) where the images have alpha, within
-    `TEMPLATE_FIT` of its colour error otherwise."""
+    silhouette error there where the images have alpha, within `TEMPLATE_FIT` of its colour error otherwise."""
     if not np.isfinite(fit.template_loss).all():
         return False
     silhouette = fit.silhouette_ratio()
     if silhouette is None:
         return fit.template_ratio() <= TEMPLATE_FIT
-    return silhouette <= SILHOUETTE_FIT and fit.template_ratio() <= COLOUR_BOUND
+    return silhouette <= SILHOUETTE_FIT
 
 
 def _skew(w: torch.Tensor) -> torch.Tensor:

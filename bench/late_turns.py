@@ -43,7 +43,7 @@ from splatreel import quaternion
 from splatreel.covariance import decompose_covariance_4d
 from splatreel.pointsets import rigid_fit
 from splatreel.rasterize import rasterize
-from splatreel.skinned import nearest_nodes, node_poses
+from splatreel.skinned import nearest_nodes, node_poses, skin_weights
 from splatreel.train import strategy
 from splatreel.train.colour_tracks import node_groups
 from splatreel.train.data import downscale_view
@@ -60,6 +60,12 @@ POOL = 3
 ROUNDS = ((8.0, 24), (3.0, 16), (1.0, 8))
 #: Whether each key takes the searched turn on its own (True), or the group all of them or none.
 PER_KEY = True
+#: Whether the re-seating inverts each Gaussian's own blend of its nodes' poses (`late-turns-exact`: the linear
+#: blend is affine in the canonical mean, so it inverts exactly for given weights, iterated with the weights) rather
+#: than the group's rigid fit.
+EXACT_RESEAT = False
+#: The exact inverse is taken where both blends' smallest singular value is above this (a blend of agreeing turns: 1).
+FIRM_BLEND = 0.8
 
 
 def _rotvec(r: np.ndarray) -> np.ndarray:
@@ -113,6 +119,30 @@ def _keys_taken(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> list
     return [bool(searched[near == ki].sum() < kept[near == ki].sum()) for ki in range(len(keys))]
 
 
+def _inverse_blend(world: torch.Tensor, means: torch.Tensor, canonical: torch.Tensor, sigma: float, old, new,
+                   rounds: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
+    """Canonical means ``[N, 3]`` that the `new` node poses (positions, rotations at one time) carry to `world`, per
+    Gaussian the ``[N, 3, 3]`` map of its covariance from the old canonical frame to the new (the new blend's
+    inverse after the old blend), and ``[N]`` where both blends are firm (smallest singular value above
+    `FIRM_BLEND`; elsewhere the caller keeps the rigid fit's). The carry is x -> A x + b with A the weighted sum of the nodes' turns and b of
+    their offsets (`splatreel.skinned.carry`): inverted for the weights of the current estimate, `rounds` times."""
+    def blend(x, poses):
+        nodes, weights = skin_weights(x, canonical, sigma)
+        at, turn = (p.double()[nodes] for p in poses)  # [N, K, 3], [N, K, 3, 3]
+        w = weights.double()[..., None]
+        a = (w[..., None] * turn).sum(1)
+        b = (w * (at - (turn @ canonical[nodes][..., None])[..., 0])).sum(1)
+        return a, b
+    a_old, _ = blend(means, old)
+    x = means
+    for _ in range(rounds):
+        a_new, b_new = blend(x, new)
+        x = torch.linalg.solve(a_new, (world - b_new)[..., None])[..., 0]
+    # where nodes that turn apart share a Gaussian their blend is near singular and its inverse throws it far
+    firm = (torch.linalg.svdvals(a_new)[:, -1] > FIRM_BLEND) & (torch.linalg.svdvals(a_old)[:, -1] > FIRM_BLEND)
+    return x, torch.linalg.solve(a_new, a_old), firm
+
+
 def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times: torch.Tensor, times: list[float],
             canonical: torch.Tensor, group: np.ndarray, own: torch.Tensor) -> tuple[dict, torch.Tensor]:
     """The canonical-frame values (means and the 4D shape's tensors, for every Gaussian) that keep each Gaussian of
@@ -129,16 +159,24 @@ def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times
         rows = changed[frame[changed] == k]
         p_old, _ = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[k])
         p_new, _ = node_poses(key_times, positions.float(), rotations.float(), times[k])
-        # the carry maps the canonical frame to frame k: its rigid fit over the group's nodes, before and after
-        r_old, _, _ = _rigid(here, p_old[group].double().numpy())
-        r_new, a_new, b_new = _rigid(here, p_new[group].double().numpy())
         # where the old poses carried them (the learned poses are no rigid motion, so not by the fit)
         (world, _), = skinned.centres([times[k]])
         worlds[k] = world[rows].double()
-        means[rows] = (worlds[k] - torch.from_numpy(b_new)) @ torch.from_numpy(r_new) + torch.from_numpy(a_new)
-        q = torch.eye(4, dtype=torch.float64)
-        q[:3, :3] = torch.from_numpy(r_new.T @ r_old)
-        cov4[rows] = q @ cov4[rows] @ q.T
+        # the carry maps the canonical frame to frame k: its rigid fit over the group's nodes, before and after
+        r_old, _, _ = _rigid(here, p_old[group].double().numpy())
+        r_new, a_new, b_new = _rigid(here, p_new[group].double().numpy())
+        fitted = (worlds[k] - torch.from_numpy(b_new)) @ torch.from_numpy(r_new) + torch.from_numpy(a_new)
+        q = torch.eye(4, dtype=torch.float64).repeat(len(rows), 1, 1)
+        q[:, :3, :3] = torch.from_numpy(r_new.T @ r_old)
+        if EXACT_RESEAT:
+            exact, turn, firm = _inverse_blend(worlds[k], means[rows], canonical.double(), skinned.node_sigma,
+                                               node_poses(key_times, skinned.node_positions.double(),
+                                                          skinned.node_rotations.double(), times[k]),
+                                               node_poses(key_times, positions, rotations, times[k]))
+            fitted[firm] = exact[firm]
+            q[firm, :3, :3] = turn[firm]
+        means[rows] = fitted
+        cov4[rows] = q @ cov4[rows] @ q.transpose(-1, -2)
     scales, t_scales, q_l, q_r = decompose_covariance_4d(cov4[changed], g4.rotation_convention)
     values = {"means": means.float(), "log_scales": g4.log_scales.clone(), "log_t_scales": g4.log_t_scales.clone(),
               "quats_l": g4.quats_l.clone(), "quats_r": g4.quats_r.clone()}
@@ -146,8 +184,9 @@ def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times
     values["log_t_scales"][changed] = t_scales.clamp_min(1e-12).log().float()
     values["quats_l"][changed] = q_l.float()
     values["quats_r"][changed] = q_r.float()
+    # the skin derived from the new means, as the trainer derives it once the poses change (`refit_turns`)
     after = replace(skinned, gaussians=replace(g4, **{k: v.to(g4.means) for k, v in values.items()}),
-                    node_positions=positions.float(), node_rotations=rotations.float())
+                    node_positions=positions.float(), node_rotations=rotations.float(), skin=None)
     moved = torch.zeros(len(changed), dtype=torch.float64)
     for k, world in worlds.items():
         sel = frame[changed] == k

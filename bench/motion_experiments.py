@@ -48,7 +48,8 @@ EXPERIMENT:
          each group of at least 16 moving nodes has its turn at every frame searched by render and compare against
          its own sharp middle-frame Gaussians, outwards from the middle frame, and each node key takes the searched
          turn where it draws the frames nearest that key better than the learned poses; the group's Gaussians are
-         moved in the canonical frame so that each stays where it was at its own time (`bench/late_turns.py`).
+         moved in the canonical frame so that each stays where it was at its own time (`bench/late_turns.py`;
+         `late-turns-exact`: by inverting each Gaussian's own blend of its nodes' poses, not the group's rigid fit).
 
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md. So is the experiment
@@ -482,12 +483,14 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
-def use_late_turns(at: float = 0.6) -> list[str]:
+def use_late_turns(at: float = 0.6, exact: bool = False) -> list[str]:
     """`late-turns`: at share `at` of the run, each rigid group of moving nodes has its turns searched by render and
     compare against its sharp middle-frame Gaussians, and takes them where they draw better (`bench/late_turns.py`)."""
     import splatreel.train.trainer as trainer
+    import late_turns
     from late_turns import refit_turns
 
+    late_turns.EXACT_RESEAT = exact
     step = trainer.Trainer.train_step
     done: set[int] = set()
 
@@ -511,7 +514,8 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor
                **{f"floor-nodes-exact-{'-'.join(n)}": functools.partial(use_floor_exact_nodes, n)
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))},
                "floor-nodes-exact-pendulum-moving": functools.partial(use_floor_exact_nodes, ("pendulum",), True),
-               "late-turns": use_late_turns, "late-turns-45": functools.partial(use_late_turns, 0.45)}
+               "late-turns": use_late_turns, "late-turns-45": functools.partial(use_late_turns, 0.45),
+               "late-turns-exact": functools.partial(use_late_turns, exact=True)}
 
 
 def main() -> None:

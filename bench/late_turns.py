@@ -45,7 +45,7 @@ from splatreel import quaternion
 from splatreel.covariance import decompose_covariance_4d
 from splatreel.pointsets import rigid_fit
 from splatreel.rasterize import rasterize
-from splatreel.skinned import nearest_nodes, node_poses, skin_weights
+from splatreel.skinned import carry, nearest_nodes, node_poses, skin_weights
 from splatreel.train import strategy
 from splatreel.train.colour_tracks import node_groups
 from splatreel.train.data import downscale_view
@@ -122,19 +122,17 @@ def _keys_taken(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> list
 
 
 def _inverse_blend(world: torch.Tensor, means: torch.Tensor, canonical: torch.Tensor, sigma: float, old, new,
-                   rounds: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
-    """Canonical means ``[N, 3]`` that the `new` node poses (positions, rotations at one time) carry to `world`, per
-    Gaussian the ``[N, 3, 3]`` map of its covariance from the old canonical frame to the new (the new blend's
-    inverse after the old blend), and ``[N]`` where both blends are firm (smallest singular value above
-    `FIRM_BLEND`; elsewhere the caller keeps the rigid fit's). The carry is x -> A x + b with A the weighted sum of the nodes' turns and b of
-    their offsets (`splatreel.skinned.carry`): inverted for the weights of the current estimate, `rounds` times."""
+                   rounds: int = 3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Canonical means ``[N, 3]`` that the `new` node poses (positions, rotation matrices at one time) carry to
+    `world`; per Gaussian the ``[N, 3, 3]`` map of its covariance from the old canonical frame to the new (the new
+    blend's inverse after the old blend); and ``[N]`` where both blends are firm (smallest singular value above
+    `FIRM_BLEND`; elsewhere the caller keeps the rigid fit's). The carry (`splatreel.skinned.carry`) is x -> A x + b
+    for given weights: A and b are read off it, and it is inverted for the weights of each estimate, `rounds` times."""
     def blend(x, poses):
-        nodes, weights = skin_weights(x, canonical, sigma)
-        at, turn = (p.double()[nodes] for p in poses)  # [N, K, 3], [N, K, 3, 3]
-        w = weights.double()[..., None]
-        a = (w[..., None] * turn).sum(1)
-        b = (w * (at - (turn @ canonical[nodes][..., None])[..., 0])).sum(1)
-        return a, b
+        skin = skin_weights(x, canonical, sigma)
+        at = lambda p: carry(p, None, *skin, canonical, *poses)[0]  # noqa: E731
+        b = at(torch.zeros_like(x))
+        return torch.stack([at(e.expand_as(x)) - b for e in torch.eye(3, dtype=x.dtype)], -1), b
     a_old, _ = blend(means, old)
     x = means
     for _ in range(rounds):

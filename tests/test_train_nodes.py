@@ -106,9 +106,12 @@ def test_one_rigid_motion_fitted_to_the_frames_carries_the_box_where_the_flow_dr
     assert template_fits(fit) and fit.template_ratio() < 1.3, fit.template_loss
 
 
-def test_without_alpha_the_template_is_judged_by_its_colour(spinner):
+@pytest.mark.parametrize("alpha", ["none", "opaque"])
+def test_without_a_silhouette_the_template_is_judged_by_its_colour(spinner, alpha):
+    """No alpha, or an alpha opaque everywhere (no silhouette to draw): the colour ratio decides, as before."""
     ds = load_dataset(spinner)
-    opaque = dataclasses.replace(ds, train=[dataclasses.replace(v, alpha=None) for v in ds.train])
+    opaque = dataclasses.replace(ds, train=[dataclasses.replace(
+        v, alpha=None if alpha == "none" else np.full(v.image.shape[:2], 255, np.uint8)) for v in ds.train])
     model = build_model("spinner")
     tracked = track_nodes(model, opaque, torch.ones(3), count=64)
     fit = fit_tracks(model, opaque, torch.ones(3), tracked, node_spacing(tracked.canonical), steps=40, give_up=True)
@@ -342,3 +345,16 @@ def test_the_outcome_line_names_the_measure_that_decided():
     assert "1.10 times its silhouette error" in both and "1.50" not in both
     colour = node_outcome_line({"template": False, "template_ratio": 1.5, "silhouette_ratio": None}, "auto")
     assert "1.50 times its error" in colour and colour.endswith("; the motion stays quadratic")
+
+
+def test_the_silhouette_decides_where_it_was_measured():
+    """One set fits by its silhouette whatever its colour ratio (a rigid subject's shading changes under a fixed
+    light), is refused by it whatever its colour's, and by the colour where no silhouette was measured."""
+    from splatreel.train.pose_fit import FittedTracks
+
+    nodes = TrackedNodes(torch.zeros(3, 4, 3, dtype=torch.float64), torch.zeros(3, 4, 4, dtype=torch.float64), 1)
+    steady, shaded = np.array([1.1, 1.0, 1.05]), np.array([1.6, 1.0, 1.3])
+    assert template_fits(FittedTracks(nodes, shaded, steady))
+    assert not template_fits(FittedTracks(nodes, steady, shaded))
+    assert template_fits(FittedTracks(nodes, steady)) and not template_fits(FittedTracks(nodes, shaded))
+    assert not template_fits(FittedTracks(nodes, np.array([np.inf, 1.0, 1.0]), steady))  # a key given up on

@@ -73,6 +73,9 @@ TEMPLATE_FIT = 1.4
 #: template sharpens: 1.50 in a 5-minute run), so a subject whose pattern changes inside a still silhouette is taken
 #: for one set (`--node-template off` keeps each frame's own).
 SILHOUETTE_FIT = 1.5
+#: The silhouette is the measure only where the subject leaves this share of the middle frame's pixels transparent
+#: (alpha below a half): an alpha that is opaque everywhere draws no silhouette.
+MIN_TRANSPARENT = 0.01
 
 
 @dataclass
@@ -107,22 +110,17 @@ def _worst_ratio(loss: np.ndarray, middle: int) -> float:
     return float(np.max(loss[fitted]) / max(own, 1e-8)) if fitted.any() and np.isfinite(own) else float("inf")
 
 
-def _key_fits(colour: float, silhouette: float | None, own_colour: float, own_silhouette: float | None) -> bool:
-    """Whether one key's carried template draws it well enough beside its own frame (`template_fits`)."""
-    if silhouette is None:
-        return colour <= TEMPLATE_FIT * own_colour
-    return silhouette <= SILHOUETTE_FIT * max(own_silhouette, 1e-8)
+def _judged(template_loss: np.ndarray, silhouette_loss: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """The losses that decide whether one set fits, and their bound: the silhouette's where measured, else the
+    colour's."""
+    return (template_loss, TEMPLATE_FIT) if silhouette_loss is None else (silhouette_loss, SILHOUETTE_FIT)
 
 
 def template_fits(fit: FittedTracks) -> bool:
     """Whether the carried template draws every key frame nearly as well as its own: within `SILHOUETTE_FIT` of its
     silhouette error there where the images have alpha, within `TEMPLATE_FIT` of its colour error otherwise."""
-    if not np.isfinite(fit.template_loss).all():
-        return False
-    silhouette = fit.silhouette_ratio()
-    if silhouette is None:
-        return fit.template_ratio() <= TEMPLATE_FIT
-    return silhouette <= SILHOUETTE_FIT
+    loss, bound = _judged(fit.template_loss, fit.silhouette_loss)
+    return bool(np.isfinite(fit.template_loss).all()) and _worst_ratio(loss, fit.nodes.middle) <= bound
 
 
 def _skew(w: torch.Tensor) -> torch.Tensor:
@@ -139,25 +137,15 @@ def _template(model: Gaussians4D, times: list[float], middle: int) -> Gaussians3
     return replace(s.select(keep), velocities=None)  # the nodes move it: no velocity of its own
 
 
-def _mean_error(gaussians: Gaussians3D, views: list, background: torch.Tensor) -> torch.Tensor:
-    return sum((rasterize(gaussians, cam, background).rgb - target).abs().mean() for cam, target, _ in views) / len(views)
-
-
-def _errors(gaussians: Gaussians3D, views: list, background: torch.Tensor, silhouette: bool
-            ) -> tuple[float, float | None]:
-    """(mean absolute colour error, the same of alpha when `silhouette`, else None) over `views`."""
-    colour = alpha = 0.0
+def _mean_errors(gaussians: Gaussians3D, views: list, background: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean absolute (colour, alpha) errors over `views` of (camera, rgb, alpha or None) (alpha: 0 without)."""
+    colour = alpha = torch.zeros(())
     for cam, target, target_alpha in views:
         out = rasterize(gaussians, cam, background)
-        colour += float((out.rgb - target).abs().mean())
-        if silhouette:
-            alpha += float((out.alpha - target_alpha).abs().mean())
-    return colour / len(views), alpha / len(views) if silhouette else None
-
-
-#: The silhouette is the measure only where the subject leaves this share of the middle frame's pixels transparent
-#: (alpha below a half): an alpha that is opaque everywhere draws no silhouette.
-MIN_TRANSPARENT = 0.01
+        colour = colour + (out.rgb - target).abs().mean()
+        if target_alpha is not None:
+            alpha = alpha + (out.alpha - target_alpha).abs().mean()
+    return colour / len(views), alpha / len(views)
 
 
 def _transparent_share(views: list) -> float:
@@ -212,16 +200,16 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
         *tracked.rotations.shape[:2], 3, 3)
     template_loss = np.full(len(times), np.inf)
     silhouette_loss = np.full(len(times), np.inf) if silhouette else None
+    judged, bound = _judged(template_loss, silhouette_loss)
 
-    def record(k: int) -> tuple[float, float | None]:
+    def record(k: int) -> None:
         with torch.no_grad():
-            colour, alpha = _errors(carried(positions[k], turns[k]), views[k], background, silhouette)
-        template_loss[k] = colour
+            colour, alpha = _mean_errors(carried(positions[k], turns[k]), views[k], background)
+        template_loss[k] = float(colour)
         if silhouette_loss is not None:
-            silhouette_loss[k] = alpha
-        return colour, alpha
+            silhouette_loss[k] = float(alpha)
 
-    own = record(mid)
+    record(mid)
     order = [(1, k) for k in range(mid + 1, len(times))] + [(-1, k) for k in range(mid - 1, -1, -1)]
     for step, k in order:
         p0, r0 = _rigid_start(tracked, positions[k - step], turns[k - step], k, step)
@@ -236,7 +224,7 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
             moved = replace(start, means=(start.means - centre) @ r.T + centre + radius * shift,
                             covariances=r @ start.covariances @ r.T)
             pick = rng.choice(len(views[k]), min(FIT_VIEWS_PER_STEP, len(views[k])), replace=False)
-            loss = _mean_error(moved, [views[k][j] for j in pick], background)
+            loss = _mean_errors(moved, [views[k][j] for j in pick], background)[0]
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -246,7 +234,8 @@ def fit_tracks(model: Gaussians4D, ds: Dataset, background: torch.Tensor, tracke
             c = centre.to(positions.dtype)
             positions[k] = (p0 - c) @ r.T + c + radius * shift.to(positions.dtype)
             turns[k] = r @ r0
-        if not _key_fits(*record(k), *own) and give_up:
+        record(k)
+        if give_up and judged[k] > bound * max(judged[mid], 1e-8):
             break
     rotations = quaternion.from_rotmat(turns.reshape(-1, 3, 3)).reshape(tracked.rotations.shape)
     return FittedTracks(TrackedNodes(positions, rotations, mid), template_loss, silhouette_loss)

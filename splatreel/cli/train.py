@@ -199,8 +199,8 @@ def node_outcome_line(outcome: dict | None, motion: str) -> str | None:
     """What the switch to control nodes decided (`Trainer.node_outcome`), in one line; None when there was none."""
     if outcome is None:
         return None
-    silhouette, colour = outcome.get("silhouette_ratio"), outcome["template_ratio"]
-    ratio, measure = (silhouette, "silhouette error") if silhouette is not None else (colour, "error")
+    ratio, measure = (outcome["silhouette_ratio"], "silhouette error") if outcome.get("silhouette_ratio") \
+        is not None else (outcome["template_ratio"], "error")
     fit = "" if ratio is None or ratio == float("inf") else \
         f" (its worst frame fitted: {ratio:.2f} times its {measure} at the middle frame)"
     if outcome.get("tracked_by") == "motion":

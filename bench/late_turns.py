@@ -30,10 +30,13 @@ lose up to 2.8. The re-seated Gaussians land 0.04 units from where they were at 
 percentile (`moved_median`, `moved_p95` in the printed report, now taken with the skin derived from the new means,
 as the trainer derives it after: 1.3-2.6 units at the 95th percentile of the box's, whose Gaussians take other
 nodes). Re-seated by their own blend inverted (`EXACT_RESEAT`): 25.13; the search at 45 % of the run: 24.20.
+Each re-seated Gaussian keeping its nodes and weights (`HOLD_SKIN`, `late-turns-hold`): 25.69, and with candidates
+scored over 6 frames ahead (`LATE_TURNS_POOL=6` in the environment; over 3 the box is lost at frames 68-73): 26.14.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from dataclasses import replace
@@ -55,9 +58,10 @@ from splatreel.train.nodes import TrackedNodes
 
 #: Fewest nodes a group needs for a search.
 MIN_NODES = 16
-#: The search renders at about this many pixels across, and scores a candidate over this many frames ahead.
+#: The search renders at about this many pixels across, and scores a candidate over this many frames ahead (one
+#: camera each: over 3, the floor's box is lost for 6 frames where one camera's view prefers a wrong turn).
 FIT_SIZE = 100
-POOL = 3
+POOL = int(os.environ.get("LATE_TURNS_POOL", 3))
 #: Random search rounds: (spread in degrees of the per-frame increment, candidates).
 ROUNDS = ((8.0, 24), (3.0, 16), (1.0, 8))
 #: Whether each key takes the searched turn on its own (True), or the group all of them or none.
@@ -68,6 +72,10 @@ PER_KEY = True
 EXACT_RESEAT = False
 #: The exact inverse is taken where both blends' smallest singular value is above this (a blend of agreeing turns: 1).
 FIRM_BLEND = 0.8
+#: Whether each re-seated Gaussian keeps the nodes and weights it had (`late-turns-hold`): inverted exactly for them,
+#: and held through the trainer's later skin updates and densifications, instead of taking the nodes nearest its
+#: new canonical mean.
+HOLD_SKIN = False
 
 
 def _rotvec(r: np.ndarray) -> np.ndarray:
@@ -121,26 +129,42 @@ def _keys_taken(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> list
     return [bool(searched[near == ki].sum() < kept[near == ki].sum()) for ki in range(len(keys))]
 
 
+def _affine(idx: torch.Tensor, w: torch.Tensor, canonical: torch.Tensor, poses) -> tuple[torch.Tensor, torch.Tensor]:
+    """The carry (`splatreel.skinned.carry`) of Gaussians with nodes `idx` and weights `w` ``[N, K]`` at node poses
+    `poses` as x -> A x + b: ``A [N, 3, 3]``, ``b [N, 3]``, read off it (it is affine in the canonical mean)."""
+    at = lambda p: carry(p, None, idx, w, canonical, *poses)[0]  # noqa: E731
+    zero = torch.zeros(len(idx), 3, dtype=canonical.dtype)
+    b = at(zero)
+    return torch.stack([at(e.expand_as(zero)) - b for e in torch.eye(3, dtype=zero.dtype)], -1), b
+
+
+def _firm(*blends: torch.Tensor) -> torch.Tensor:
+    """``[N]``: where every blend's smallest singular value is above `FIRM_BLEND` (a blend of agreeing turns: 1);
+    where nodes that turn apart share a Gaussian the blend is near singular and its inverse throws it far."""
+    return torch.stack([torch.linalg.svdvals(a)[:, -1] > FIRM_BLEND for a in blends]).all(0)
+
+
 def _inverse_blend(world: torch.Tensor, means: torch.Tensor, canonical: torch.Tensor, sigma: float, old, new,
                    rounds: int = 3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Canonical means ``[N, 3]`` that the `new` node poses (positions, rotation matrices at one time) carry to
     `world`; per Gaussian the ``[N, 3, 3]`` map of its covariance from the old canonical frame to the new (the new
-    blend's inverse after the old blend); and ``[N]`` where both blends are firm (smallest singular value above
-    `FIRM_BLEND`; elsewhere the caller keeps the rigid fit's). The carry (`splatreel.skinned.carry`) is x -> A x + b
-    for given weights: A and b are read off it, and it is inverted for the weights of each estimate, `rounds` times."""
-    def blend(x, poses):
-        skin = skin_weights(x, canonical, sigma)
-        at = lambda p: carry(p, None, *skin, canonical, *poses)[0]  # noqa: E731
-        b = at(torch.zeros_like(x))
-        return torch.stack([at(e.expand_as(x)) - b for e in torch.eye(3, dtype=x.dtype)], -1), b
-    a_old, _ = blend(means, old)
+    blend's inverse after the old blend); and ``[N]`` where both blends are firm (`_firm`; elsewhere the caller
+    keeps the rigid fit's). The carry is inverted for the weights of each estimate, `rounds` times."""
+    a_old, _ = _affine(*skin_weights(means, canonical, sigma), canonical, old)
     x = means
     for _ in range(rounds):
-        a_new, b_new = blend(x, new)
+        a_new, b_new = _affine(*skin_weights(x, canonical, sigma), canonical, new)
         x = torch.linalg.solve(a_new, (world - b_new)[..., None])[..., 0]
-    # where nodes that turn apart share a Gaussian their blend is near singular and its inverse throws it far
-    firm = (torch.linalg.svdvals(a_new)[:, -1] > FIRM_BLEND) & (torch.linalg.svdvals(a_old)[:, -1] > FIRM_BLEND)
-    return x, torch.linalg.solve(a_new, a_old), firm
+    return x, torch.linalg.solve(a_new, a_old), _firm(a_new, a_old)
+
+
+def _held_inverse(world: torch.Tensor, skin: tuple[torch.Tensor, torch.Tensor], canonical: torch.Tensor, old, new
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """As `_inverse_blend`, for Gaussians that keep their `skin` (nodes, weights ``[N, K]``): one exact solve."""
+    a_old, _ = _affine(*skin, canonical, old)
+    a_new, b_new = _affine(*skin, canonical, new)
+    return (torch.linalg.solve(a_new, (world - b_new)[..., None])[..., 0], torch.linalg.solve(a_new, a_old),
+            _firm(a_new, a_old))
 
 
 def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times: torch.Tensor, times: list[float],
@@ -153,6 +177,7 @@ def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times
     changed = torch.nonzero(own)[:, 0]
     means = g4.means.detach().clone().double()
     cov4 = g4.covariance_4d().double()
+    held = torch.zeros(len(g4), dtype=torch.bool)
     here = canonical[group].double().numpy()
     worlds = {}
     for k in frame[changed].unique().tolist():
@@ -168,7 +193,16 @@ def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times
         fitted = (worlds[k] - torch.from_numpy(b_new)) @ torch.from_numpy(r_new) + torch.from_numpy(a_new)
         q = torch.eye(4, dtype=torch.float64).repeat(len(rows), 1, 1)
         q[:, :3, :3] = torch.from_numpy(r_new.T @ r_old)
-        if EXACT_RESEAT:
+        if HOLD_SKIN:
+            exact, turn, firm = _held_inverse(worlds[k], tuple(x[rows].cpu() for x in skinned.skin),
+                                              canonical.double(),
+                                              node_poses(key_times, skinned.node_positions.double(),
+                                                         skinned.node_rotations.double(), times[k]),
+                                              node_poses(key_times, positions, rotations, times[k]))
+            fitted[firm] = exact[firm]
+            q[firm, :3, :3] = turn[firm]
+            held[rows] = firm
+        elif EXACT_RESEAT:
             exact, turn, firm = _inverse_blend(worlds[k], means[rows], canonical.double(), skinned.node_sigma,
                                                node_poses(key_times, skinned.node_positions.double(),
                                                           skinned.node_rotations.double(), times[k]),
@@ -184,15 +218,60 @@ def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times
     values["log_t_scales"][changed] = t_scales.clamp_min(1e-12).log().float()
     values["quats_l"][changed] = q_l.float()
     values["quats_r"][changed] = q_r.float()
-    # the skin derived from the new means, as the trainer derives it once the poses change (`refit_turns`)
+    # the skin derived from the new means, as the trainer derives it once the poses change (`refit_turns`), save
+    # where it is held
+    skin = skin_weights(values["means"], canonical, skinned.node_sigma)
+    skin = tuple(torch.where(held[:, None], old, new) for old, new in zip(skinned.skin, skin))
     after = replace(skinned, gaussians=replace(g4, **{k: v.to(g4.means) for k, v in values.items()}),
-                    node_positions=positions.float(), node_rotations=rotations.float(), skin=None)
+                    node_positions=positions.float(), node_rotations=rotations.float(), skin=skin)
     moved = torch.zeros(len(changed), dtype=torch.float64)
     for k, world in worlds.items():
         sel = frame[changed] == k
         (b, _), = after.centres([times[k]])
         moved[sel] = (world - b[changed[sel]].double()).norm(dim=1)
-    return values, moved
+    return values, moved, held
+
+
+def group_scorer(skinned, group: np.ndarray, own: torch.Tensor, views: dict, bg: torch.Tensor,
+                 key_times: torch.Tensor, times: list[float]):
+    """For one group of nodes (`group`) and the Gaussians nearest them (`own` ``[N]``): `error(turn, k)`, the mean
+    L1 of frame k's training view (`views[k]`: camera and target) drawn with the group's middle-frame Gaussians
+    turned by `turn` ``[3, 3]`` about the group's centre (carried where the learned poses carry it) over the rest of
+    the frame's slice; the learned poses' rigid turns since the middle frame ``{k: [3, 3]}``; the group's nodes'
+    middle-frame positions, rotations and centre; and the centre's place at every frame ``{k: [3]}``."""
+    mid = len(times) // 2
+    with torch.no_grad():
+        p_mid, r_mid = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[mid])
+        c_mid = p_mid[group].double().mean(0).numpy()
+        s_mid = skinned.slice(times[mid])
+        tpl = s_mid.select(own & s_mid.visible)
+        backdrop, learned, centre = {}, {}, {}
+        for k in range(len(times)):
+            backdrop[k] = rasterize(skinned.slice(times[k]).select(~own), views[k][0], bg).rgb
+            p_k, _ = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[k])
+            r, a, b = _rigid(p_mid[group].double().numpy(), p_k[group].double().numpy())
+            learned[k], centre[k] = r, b + r @ (c_mid - a)  # where the group's middle centre goes
+
+    def error(turn: np.ndarray, k: int) -> float:
+        cam, target = views[k]
+        r = torch.from_numpy(turn).float()
+        g = replace(tpl, means=(tpl.means - torch.from_numpy(c_mid).float()) @ r.T
+                    + torch.from_numpy(centre[k]).float(), covariances=r @ tpl.covariances @ r.T, velocities=None)
+        out = rasterize(g, cam, (0.0, 0.0, 0.0))
+        return float(((out.rgb + (1 - out.alpha[..., None]) * backdrop[k]) - target).abs().mean())
+
+    return error, learned, (p_mid, r_mid, c_mid), centre
+
+
+def training_views(ds, bg: torch.Tensor) -> dict:
+    """Each frame's training view at about `FIT_SIZE` px: ``{k: (camera, target)}`` (one camera per time)."""
+    times = list(ds.frame_times)
+    frame_of = nearest_key(torch.tensor([v.time for v in ds.train]), torch.tensor(times)).tolist()
+    views = {}
+    for v, k in zip(ds.train, frame_of):
+        small = downscale_view(v, max(1, round(min(v.size) / FIT_SIZE)))
+        views[k] = (small.camera, view_target(small, bg)[0])
+    return views
 
 
 def refit_turns(trainer, seed: int = 0) -> list[dict]:
@@ -215,39 +294,20 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
                          nodes.sigma)
     positions = nodes.positions.detach().cpu().double()
     rotations = nodes.rotations.detach().cpu().double()
-    frame_of = nearest_key(torch.tensor([v.time for v in ds.train]), torch.tensor(times)).tolist()
-    views = {}
-    for v, k in zip(ds.train, frame_of):
-        small = downscale_view(v, max(1, round(min(v.size) / FIT_SIZE)))
-        views[k] = (small.camera, view_target(small, bg)[0])
+    views = training_views(ds, bg)
     skinned = replace(model, gaussians=model.gaussians.detach().to("cpu"), node_positions=positions.float(),
                       node_rotations=rotations.float())
     _, nearest = nearest_nodes(canonical, skinned.gaussians.means, 1)
     rng = np.random.default_rng(seed)
     report = []
+    hold = torch.zeros(len(skinned.gaussians), dtype=torch.bool)
+    old_skin = tuple(x.cpu() for x in skinned.skin)
     for group in groups:
         if len(group) < MIN_NODES:
             continue
         own = torch.isin(nearest[:, 0], torch.from_numpy(group))
-        with torch.no_grad():
-            p_mid, r_mid = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[mid])
-            c_mid = p_mid[group].double().mean(0).numpy()
-            s_mid = skinned.slice(times[mid])
-            tpl = s_mid.select(own & s_mid.visible)
-            backdrop, learned, centre = {}, {}, {}
-            for k in range(frames):
-                backdrop[k] = rasterize(skinned.slice(times[k]).select(~own), views[k][0], bg).rgb
-                p_k, _ = node_poses(key_times, skinned.node_positions, skinned.node_rotations, times[k])
-                r, a, b = _rigid(p_mid[group].double().numpy(), p_k[group].double().numpy())
-                learned[k], centre[k] = r, b + r @ (c_mid - a)  # where the group's middle centre goes
-
-        def error(turn: np.ndarray, k: int) -> float:
-            cam, target = views[k]
-            r = torch.from_numpy(turn).float()
-            g = replace(tpl, means=(tpl.means - torch.from_numpy(c_mid).float()) @ r.T
-                        + torch.from_numpy(centre[k]).float(), covariances=r @ tpl.covariances @ r.T, velocities=None)
-            out = rasterize(g, cam, (0.0, 0.0, 0.0))
-            return float(((out.rgb + (1 - out.alpha[..., None]) * backdrop[k]) - target).abs().mean())
+        error, learned, (p_mid, r_mid, c_mid), centre = group_scorer(skinned, group, own, views, bg, key_times,
+                                                                       times)
 
         with torch.no_grad():
             turns = _search(error, learned, frames, mid, rng)
@@ -267,7 +327,8 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
                     positions[ki, group] = (p_mid[group].double() - torch.from_numpy(c_mid)) @ r.T \
                         + torch.from_numpy(centre[k])
                     rotations[ki, group] = quaternion.from_rotmat(r[None] @ r_mid[group].double())
-            values, moved = _reseat(skinned, positions, rotations, key_times, times, canonical, group, own)
+            values, moved, held = _reseat(skinned, positions, rotations, key_times, times, canonical, group, own)
+            hold |= held
         strategy.replace_values(trainer.params, trainer.optimizer,
                                 {k: v.to(trainer.device) for k, v in values.items()})
         skinned = replace(skinned, gaussians=replace(skinned.gaussians, **values),
@@ -283,6 +344,8 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
                 if torch.is_tensor(v) and v.dim() > 0:
                     v.zero_()
         nodes._skin = None
+        if hold.any():
+            nodes._held = (hold.to(trainer.device),) + tuple(x.to(trainer.device) for x in old_skin)
     print(f"late-turns at step {trainer.step}: {report} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr,
           flush=True)
     return report

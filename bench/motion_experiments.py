@@ -49,7 +49,12 @@ EXPERIMENT:
          its own sharp middle-frame Gaussians, outwards from the middle frame, and each node key takes the searched
          turn where it draws the frames nearest that key better than the learned poses; the group's Gaussians are
          moved in the canonical frame so that each stays where it was at its own time (`bench/late_turns.py`;
-         `late-turns-exact`: by inverting each Gaussian's own blend of its nodes' poses, not the group's rigid fit).
+         `late-turns-exact`: by inverting each Gaussian's own blend of its nodes' poses, not the group's rigid fit;
+         `late-turns-hold`: inverting it for the nodes and weights the Gaussian had, which it then keeps through
+         the trainer's skin updates and densifications, instead of taking the nodes nearest its new canonical mean,
+         and the evaluated model carries that skin). In the environment, `LATE_TURNS_POOL=N` scores each candidate
+         turn over N frames ahead (default 3), and `LATE_TURNS_SNAPSHOT=FILE` saves the trainer (torch.save) where
+         the search would start and exits, for offline probes.
 
 The control-node prototype that was here is now `--motion nodes` (`splatreel.train.nodes`, `splatreel.skinned`);
 its last version is in the history (commit e78221a) and its results in docs/benchmarks.md. So is the experiment
@@ -66,6 +71,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 import runpy
 import sys
 import types
@@ -483,7 +489,64 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
-def use_late_turns(at: float = 0.6, exact: bool = False) -> list[str]:
+def _hold_skins() -> None:
+    """The skin of the Gaussians `late_turns` re-seats (`Nodes._held`: mask, nodes, weights per Gaussian) kept through
+    the trainer's skin updates, and following its rows through densification (the parent's for a child)."""
+    import splatreel.train.trainer as trainer
+    from splatreel.train import nodes as train_nodes, strategy
+
+    skinned = train_nodes.Nodes.skinned
+
+    def held_skinned(self, gaussians, step):
+        before = self._skin
+        out = skinned(self, gaussians, step)
+        held = getattr(self, "_held", None)
+        if held is not None and self._skin is not before:
+            mask, idx, w = held
+            count, at, (i, v) = self._skin
+            self._skin = (count, at, (torch.where(mask[:, None], idx, i), torch.where(mask[:, None], w, v)))
+            out = dataclasses.replace(out, skin=self._skin[2])
+        return out
+
+    densify = trainer.Trainer._maybe_densify
+
+    def follow_rows(self):
+        rows = {}
+        inner = strategy.densify_and_prune
+
+        def recorded(*args, **kwargs):
+            out = inner(*args, **kwargs)
+            rows["source"] = out["source"]
+            return out
+        strategy.densify_and_prune = recorded
+        try:
+            densify(self)
+        finally:
+            strategy.densify_and_prune = inner
+        held = getattr(self.nodes, "_held", None) if self.nodes is not None else None
+        if held is not None and "source" in rows:
+            self.nodes._held = tuple(x[rows["source"]] for x in held)
+
+    dataset_model = trainer.Trainer.dataset_model
+
+    def held_dataset_model(self, trained=None):
+        """The checkpoint's model with the trainer's skin (the held rows'), not the one its canonical means give."""
+        out = dataset_model(self, trained)
+        if trained is not None or getattr(self.nodes, "_held", None) is None:
+            return out
+        params = {k: v.detach().cpu() for k, v in self.params.items() if k != "accelerations"}
+        native = trainer.model_on_dataset_time(Gaussians4D(
+            **params, sh_degree=self.cfg.sh_degree, sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
+            rotation_convention=self.cfg.rotation_convention), self.axis)
+        rows = native.drawn_in_clip()
+        return dataclasses.replace(out, skin=tuple(x.detach().cpu()[rows] for x in self.model().skin))
+
+    train_nodes.Nodes.skinned = held_skinned
+    trainer.Trainer._maybe_densify = follow_rows
+    trainer.Trainer.dataset_model = held_dataset_model
+
+
+def use_late_turns(at: float = 0.6, exact: bool = False, hold: bool = False) -> list[str]:
     """`late-turns`: at share `at` of the run, each rigid group of moving nodes has its turns searched by render and
     compare against its sharp middle-frame Gaussians, and takes them where they draw better (`bench/late_turns.py`)."""
     import splatreel.train.trainer as trainer
@@ -491,6 +554,9 @@ def use_late_turns(at: float = 0.6, exact: bool = False) -> list[str]:
     from late_turns import refit_turns
 
     late_turns.EXACT_RESEAT = exact
+    late_turns.HOLD_SKIN = hold
+    if hold:
+        _hold_skins()
     step = trainer.Trainer.train_step
     done: set[int] = set()
 
@@ -499,6 +565,9 @@ def use_late_turns(at: float = 0.6, exact: bool = False) -> list[str]:
         # once, at the schedule's position (a budgeted run's steps follow the clock), as the flow step is due
         if self.nodes is not None and id(self) not in done and self.vstep() >= at * self.cfg.iters:
             done.add(id(self))
+            if os.environ.get("LATE_TURNS_SNAPSHOT"):  # the trainer as the search finds it, for offline probes
+                torch.save(self, os.environ["LATE_TURNS_SNAPSHOT"], pickle_protocol=4)
+                sys.exit(0)
             refit_turns(self, self.cfg.seed)
         return out
 
@@ -515,7 +584,8 @@ EXPERIMENTS = {"rigid": use_rigid_oracle, "nodes-exact": use_exact_nodes, "floor
                   for n in (("ball",), ("box",), ("pendulum",), ("box", "pendulum"))},
                "floor-nodes-exact-pendulum-moving": functools.partial(use_floor_exact_nodes, ("pendulum",), True),
                "late-turns": use_late_turns, "late-turns-45": functools.partial(use_late_turns, 0.45),
-               "late-turns-exact": functools.partial(use_late_turns, exact=True)}
+               "late-turns-exact": functools.partial(use_late_turns, exact=True),
+               "late-turns-hold": functools.partial(use_late_turns, hold=True)}
 
 
 def main() -> None:

@@ -115,10 +115,19 @@ def test_densification_keeps_every_tensor_and_adam_state_aligned():
     state = strategy.initialize_state(n, "cpu")
     state["grad_accum"][:20] = 1.0
     state["count"][:] = 1
+    colours = params["sh_dc"].detach().clone()
+    colours[:, 0, 0] = torch.arange(n, dtype=torch.float32)  # each row's colour names it (the sum's step moved all)
+    params["sh_dc"].data.copy_(colours)
     out = strategy.densify_and_prune(params, opt, state, DensifyConfig(enabled=True), extent=10.0, step=100,
                                      convention="current", generator=g)
     assert out["cloned"] == 10 and out["split"] == 10
     assert out["total"] == n + 10 + 20 - 10 - 5
+    # the source of each row: kept rows name themselves, clones and split children their parents
+    source = out["source"]
+    assert source.shape == (out["total"],)
+    assert torch.equal(params["sh_dc"].detach()[:, 0, 0], colours[source, 0, 0])
+    assert torch.equal(torch.bincount(source, minlength=n)[:10], torch.full((10,), 2))  # each split: two children
+    assert not torch.isin(torch.arange(n - 5, n), source).any()  # the pruned
     for group in opt.param_groups:
         p = group["params"][0]
         assert p is params[group["name"]] and p.shape[0] == out["total"]

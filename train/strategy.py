@@ -85,9 +85,10 @@ def accumulate(state: dict[str, Tensor], means2d_grad: Tensor, radii: Tensor, wi
 
 def densify_and_prune(params: Params, optimizer, state: dict[str, Tensor], cfg: DensifyConfig, extent: float,
                       step: int, convention: str, generator: torch.Generator, room: int | None = None
-                      ) -> dict[str, int]:
+                      ) -> dict:
     """One densification step: clone small / split large high-gradient Gaussians (at most `room` new ones,
-    default: up to the cap, highest gradients first), then prune. Returns counts."""
+    default: up to the cap, highest gradients first), then prune. Returns counts, and ``source`` ``[N']``: the row
+    each Gaussian now comes from (itself, or the parent of a clone or a split)."""
     grads = state["grad_accum"] / state["count"].clamp_min(1)
     high = grads >= cfg.grad_threshold
     n = params["means"].shape[0]
@@ -143,5 +144,10 @@ def densify_and_prune(params: Params, optimizer, state: dict[str, Tensor], cfg: 
         remove[torch.argmax(params["opacity_logits"].detach())] = False
     keep(params, optimizer, ~remove)
     state.update(initialize_state(params["means"].shape[0], grads.device))
+    # the row each Gaussian now comes from (itself, or the parent of a clone or split), for per-Gaussian state
+    # kept outside the parameters
+    parents = [torch.arange(n, device=grads.device), clone.nonzero()[:, 0]]
+    if split.any():
+        parents.append(idx)
     return {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int(remove.sum()),
-            "total": int(params["means"].shape[0])}
+            "total": int(params["means"].shape[0]), "source": torch.cat(parents)[~remove]}

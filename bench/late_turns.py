@@ -193,20 +193,16 @@ def _reseat(skinned, positions: torch.Tensor, rotations: torch.Tensor, key_times
         fitted = (worlds[k] - torch.from_numpy(b_new)) @ torch.from_numpy(r_new) + torch.from_numpy(a_new)
         q = torch.eye(4, dtype=torch.float64).repeat(len(rows), 1, 1)
         q[:, :3, :3] = torch.from_numpy(r_new.T @ r_old)
-        if HOLD_SKIN:
-            exact, turn, firm = _held_inverse(worlds[k], tuple(x[rows].cpu() for x in skinned.skin),
-                                              canonical.double(),
-                                              node_poses(key_times, skinned.node_positions.double(),
-                                                         skinned.node_rotations.double(), times[k]),
-                                              node_poses(key_times, positions, rotations, times[k]))
-            fitted[firm] = exact[firm]
-            q[firm, :3, :3] = turn[firm]
-            held[rows] = firm
-        elif EXACT_RESEAT:
-            exact, turn, firm = _inverse_blend(worlds[k], means[rows], canonical.double(), skinned.node_sigma,
-                                               node_poses(key_times, skinned.node_positions.double(),
-                                                          skinned.node_rotations.double(), times[k]),
-                                               node_poses(key_times, positions, rotations, times[k]))
+        if HOLD_SKIN or EXACT_RESEAT:
+            poses = (node_poses(key_times, skinned.node_positions.double(), skinned.node_rotations.double(), times[k]),
+                     node_poses(key_times, positions, rotations, times[k]))
+            if HOLD_SKIN:
+                exact, turn, firm = _held_inverse(worlds[k], tuple(x[rows].cpu() for x in skinned.skin),
+                                                  canonical.double(), *poses)
+                held[rows] = firm
+            else:
+                exact, turn, firm = _inverse_blend(worlds[k], means[rows], canonical.double(), skinned.node_sigma,
+                                                   *poses)
             fitted[firm] = exact[firm]
             q[firm, :3, :3] = turn[firm]
         means[rows] = fitted
@@ -272,6 +268,61 @@ def training_views(ds, bg: torch.Tensor) -> dict:
         small = downscale_view(v, max(1, round(min(v.size) / FIT_SIZE)))
         views[k] = (small.camera, view_target(small, bg)[0])
     return views
+
+
+def hold_skins() -> None:
+    """Patch the trainer (`HOLD_SKIN`): the skin of the Gaussians `refit_turns` re-seats (`Nodes._held`: mask, nodes,
+    weights per Gaussian) kept through its skin updates, following their rows through densification (a child takes
+    its parent's), and written into the model it scores and saves."""
+    import splatreel.train.trainer as trainer
+    from splatreel.train import nodes as train_nodes
+
+    skinned = train_nodes.Nodes.skinned
+
+    def held_skinned(self, gaussians, step):
+        before = self._skin
+        out = skinned(self, gaussians, step)
+        held = getattr(self, "_held", None)
+        if held is not None and self._skin is not before:
+            mask, idx, w = held
+            count, at, (i, v) = self._skin
+            self._skin = (count, at, (torch.where(mask[:, None], idx, i), torch.where(mask[:, None], w, v)))
+            out = replace(out, skin=self._skin[2])
+        return out
+
+    densify = trainer.Trainer._maybe_densify
+
+    def follow_rows(self):
+        rows = {}
+        inner = strategy.densify_and_prune
+
+        def recorded(*args, **kwargs):
+            out = inner(*args, **kwargs)
+            rows["source"] = out["source"]
+            return out
+        strategy.densify_and_prune = recorded
+        try:
+            densify(self)
+        finally:
+            strategy.densify_and_prune = inner
+        held = getattr(self.nodes, "_held", None) if self.nodes is not None else None
+        if held is not None and "source" in rows:
+            self.nodes._held = tuple(x[rows["source"]] for x in held)
+
+    dataset_model = trainer.Trainer.dataset_model
+
+    def held_dataset_model(self, trained=None):
+        """The checkpoint's model with the trainer's skin (the held rows'), not the one its canonical means give."""
+        out = dataset_model(self, trained)
+        if trained is not None or getattr(self.nodes, "_held", None) is None:
+            return out
+        with torch.no_grad():  # the rows `dataset_model` keeps
+            rows = trainer.model_on_dataset_time(self.native_model(), self.axis).drawn_in_clip()
+        return replace(out, skin=tuple(x.detach()[rows].cpu() for x in self.model().skin))
+
+    train_nodes.Nodes.skinned = held_skinned
+    trainer.Trainer._maybe_densify = follow_rows
+    trainer.Trainer.dataset_model = held_dataset_model
 
 
 def refit_turns(trainer, seed: int = 0) -> list[dict]:

@@ -489,63 +489,6 @@ def _keep_exact_models_native() -> None:
     samples.build_model = build_model
 
 
-def _hold_skins() -> None:
-    """The skin of the Gaussians `late_turns` re-seats (`Nodes._held`: mask, nodes, weights per Gaussian) kept through
-    the trainer's skin updates, and following its rows through densification (the parent's for a child)."""
-    import splatreel.train.trainer as trainer
-    from splatreel.train import nodes as train_nodes, strategy
-
-    skinned = train_nodes.Nodes.skinned
-
-    def held_skinned(self, gaussians, step):
-        before = self._skin
-        out = skinned(self, gaussians, step)
-        held = getattr(self, "_held", None)
-        if held is not None and self._skin is not before:
-            mask, idx, w = held
-            count, at, (i, v) = self._skin
-            self._skin = (count, at, (torch.where(mask[:, None], idx, i), torch.where(mask[:, None], w, v)))
-            out = dataclasses.replace(out, skin=self._skin[2])
-        return out
-
-    densify = trainer.Trainer._maybe_densify
-
-    def follow_rows(self):
-        rows = {}
-        inner = strategy.densify_and_prune
-
-        def recorded(*args, **kwargs):
-            out = inner(*args, **kwargs)
-            rows["source"] = out["source"]
-            return out
-        strategy.densify_and_prune = recorded
-        try:
-            densify(self)
-        finally:
-            strategy.densify_and_prune = inner
-        held = getattr(self.nodes, "_held", None) if self.nodes is not None else None
-        if held is not None and "source" in rows:
-            self.nodes._held = tuple(x[rows["source"]] for x in held)
-
-    dataset_model = trainer.Trainer.dataset_model
-
-    def held_dataset_model(self, trained=None):
-        """The checkpoint's model with the trainer's skin (the held rows'), not the one its canonical means give."""
-        out = dataset_model(self, trained)
-        if trained is not None or getattr(self.nodes, "_held", None) is None:
-            return out
-        params = {k: v.detach().cpu() for k, v in self.params.items() if k != "accelerations"}
-        native = trainer.model_on_dataset_time(Gaussians4D(
-            **params, sh_degree=self.cfg.sh_degree, sh_degree_t=self.cfg.sh_degree_t, time_range=self.time_range,
-            rotation_convention=self.cfg.rotation_convention), self.axis)
-        rows = native.drawn_in_clip()
-        return dataclasses.replace(out, skin=tuple(x.detach().cpu()[rows] for x in self.model().skin))
-
-    train_nodes.Nodes.skinned = held_skinned
-    trainer.Trainer._maybe_densify = follow_rows
-    trainer.Trainer.dataset_model = held_dataset_model
-
-
 def use_late_turns(at: float = 0.6, exact: bool = False, hold: bool = False) -> list[str]:
     """`late-turns`: at share `at` of the run, each rigid group of moving nodes has its turns searched by render and
     compare against its sharp middle-frame Gaussians, and takes them where they draw better (`bench/late_turns.py`)."""
@@ -556,7 +499,7 @@ def use_late_turns(at: float = 0.6, exact: bool = False, hold: bool = False) -> 
     late_turns.EXACT_RESEAT = exact
     late_turns.HOLD_SKIN = hold
     if hold:
-        _hold_skins()
+        late_turns.hold_skins()
     step = trainer.Trainer.train_step
     done: set[int] = set()
 

@@ -19,8 +19,9 @@ that slicing shows), `test_per_view` (each test view's camera, time, PSNR and `a
 training frame's or in between), the decisions of the recipe, `nodes` (with control nodes, what the switch to them
 decided: `template`, one set of Gaussians for the clip; `template_ratio`, the carried template's worst colour loss over
 a frame over its loss at the middle frame; `silhouette_ratio`, the same of its alpha, which decides where the images
-have alpha), what the alpha-agreement test said, and the baselines' PSNR on the same test views:
-`nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
+have alpha), what the alpha-agreement test said, `far_clip` (the camera depth the capture's alpha was cut at,
+where training found one: the test views and the fit are rendered at it), and the baselines' PSNR on the same test
+views: `nearest_image_psnr` (the same camera's training image nearest in time; for test cameras that are not training
 cameras, the nearest training camera's) and `median_image_psnr` (that camera's per-pixel median training image).
 A model has to beat both by a wide margin.
 
@@ -265,8 +266,9 @@ def main() -> None:
             seconds = time.perf_counter() - t  # includes the alpha test, confidence maps and set-up
             ev = tr.evaluate_test()
             model = tr.dataset_model()  # what the checkpoint holds
-            on_black = evaluate(model, ds.test, (0.0, 0.0, 0.0), progress=False)["psnr"]
-            fit = evaluate(model, ds.train[::FIT_EVERY], ds.background, progress=False)["psnr"]
+            clip = None if tr.far_clip is None else tr.far_clip.depth  # the capture's, where training found one
+            on_black = evaluate(model, ds.test, (0.0, 0.0, 0.0), progress=False, far_plane=clip)["psnr"]
+            fit = evaluate(model, ds.train[::FIT_EVERY], ds.background, progress=False, far_plane=clip)["psnr"]
             base = baselines(ds.test, ds.train, ds.background)
             bound = upper_bound(sample, ds, None if config is None else config.frames)
             rows.append({"sample": name, "regime": "one camera per time" if traits.one_view_per_time
@@ -280,7 +282,7 @@ def main() -> None:
                          "needle_share": round(needle_share(tr), 4),
                          "sliced_needle_share": round(sliced_needle_share(tr), 4),
                          "decisions": [d.line() for d in decisions], "overrides": args.set,
-                         "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train),
+                         "alpha": describe(tr.alpha_conflicts, cfg.strict_alpha, ds.train), "far_clip": clip,
                          "background": list(ds.background), "train_psnr_ema": round(res.train_psnr, 3),
                          "test_per_view": per_view_scores(ev, ds), "nodes": tr.node_outcome,
                          "generate_seconds": round(gen_s, 2), "device": str(tr.device), "reference_ms": ref_ms,

@@ -48,6 +48,13 @@ def parse_positive(text: str) -> float:
     return _number(text, lambda v: v > 0, "a positive number")
 
 
+def parse_far_clip(text: str) -> str | float:
+    """'auto' / 'none' as they are, '6.95' -> 6.95 (a positive camera depth): the --far-clip of train and eval."""
+    if text in ("auto", "none"):
+        return text
+    return _number(text, lambda v: v > 0, "auto, none or a positive camera depth")
+
+
 def parse_non_negative(text: str) -> float:
     """'0' -> 0.0; a finite number >= 0."""
     return _number(text, lambda v: v >= 0, "a number >= 0")

@@ -350,7 +350,8 @@ def _check_gaussians(g: Gaussians3D, sh_degree: int | None) -> None:
 
 
 def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0), *,
-              sh_degree: int | None = None, num_threads: int | None = None) -> RenderOutput:
+              sh_degree: int | None = None, num_threads: int | None = None,
+              far_plane: float = FAR_PLANE) -> RenderOutput:
     """Render `gaussians` seen by `camera` over a constant `background`.
 
     Args:
@@ -359,6 +360,8 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         background: RGB ``[3]`` (sequence or tensor; a tensor may require grad).
         sh_degree: evaluate colours at this SH degree at most (default: the model's).
         num_threads: CPU threads for the compositing kernels (default: numba's setting, i.e. all cores).
+        far_plane: Gaussians whose centre's camera depth is at or beyond this are culled, as the near plane culls
+            (default: none in practice). A capture whose alpha was cut at a far clip is compared at its clip.
     Returns:
         `RenderOutput` (see there); rgb/alpha/depth are differentiable w.r.t. every input tensor.
     Raises:
@@ -376,7 +379,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
     # 1. cheap culling first (time, near plane, opacity); the survivors ("front", M of them) are projected
     with torch.no_grad():
         z_all = camera_depths(g.means.detach(), camera)
-        front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < FAR_PLANE) & (g.opacities >= ALPHA_THRESHOLD)
+        front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < far_plane) & (g.opacities >= ALPHA_THRESHOLD)
     fused = all(x.device.type == "cpu" and x.dtype == torch.float32 for x in (g.means, g.covariances))
     if fused:  # every row projected in place by the numba kernel (no gather / scatter); culled rows are inert
         from .projecting import project_fused

@@ -129,3 +129,84 @@ def test_default_recipe_beats_trivial_baselines_on_the_floor_sample(floor, tmp_p
     score = tr.evaluate_test()["psnr"]
     base = baselines(ds.test, ds.train, ds.background)
     assert score >= max(base.values()) + 3.0, (score, base)
+
+
+# --- the far clip that explains the disagreement (train.far_clip) ------------------------------------------------
+
+def test_far_clip_from_depths_finds_one_cut_and_refuses_spill():
+    from splatreel.train.far_clip import far_clip_from_depths
+
+    rng = np.random.default_rng(0)
+    shown, cut = rng.uniform(2.0, 6.9, 10_000), rng.uniform(7.0, 9.0, 3_000)  # opaque up to 6.9, empty past 7.0
+    depth = np.concatenate([shown, cut])
+    alpha = np.concatenate([np.full(len(shown), 255), np.zeros(len(cut))])
+    found = far_clip_from_depths(depth, np.ones(len(depth), bool), alpha)
+    assert 6.9 <= found.depth <= 7.0 and found.explained > 0.99 and found.cost == 0.0
+    assert "far clip at camera depth" in found.describe()
+    # an object's edges drawn a little past its silhouette: empty pixels at the depths of opaque ones
+    spill = np.concatenate([np.full(9_000, 255), np.zeros(1_000)])
+    none = far_clip_from_depths(rng.uniform(2.0, 6.0, 10_000), np.ones(10_000, bool), spill)
+    assert none.depth is None and "no far clip" in none.describe()
+    # nothing drawn where the images are empty: nothing to explain
+    assert far_clip_from_depths(shown, np.ones(len(shown), bool), np.full(len(shown), 255)).depth is None
+
+
+def test_floor_samples_far_clip_is_read_off_its_exact_model(floor):
+    """The floor sample's alpha is cut at camera depth FAR_CLIP (6.95); its top camera's floor lies at 7.0. Its
+    exact model draws that floor, so the clip it implies lies between what the side cameras see opaque and 7.0, and
+    rendering at it clears the top camera's floor."""
+    from splatreel.rasterize import rasterize
+    from splatreel.samples import build_model
+    from splatreel.train.far_clip import estimate_far_clip
+
+    ds = load_dataset(floor)
+    model = build_model("floor", config=FloorConfig(frames=36, size=64, test_views=12))
+    found = estimate_far_clip(model, ds.train, ds.background)
+    assert found.depth is not None and 6.5 < found.depth < 7.0 and found.explained > 0.9 and found.cost < 0.01
+    top = next(v for v in ds.train if v.view_id == TOP)
+    drawn = rasterize(model.slice(top.time), top.camera, ds.background).alpha.numpy()
+    clipped = rasterize(model.slice(top.time), top.camera, ds.background, far_plane=found.depth).alpha.numpy()
+    empty = top.alpha < 25
+    assert drawn[empty].mean() > 0.5 and clipped[empty].mean() < 0.05  # the floor goes, the objects stay:
+    assert clipped[top.alpha > 230].mean() > 0.9
+
+
+def test_trainer_renders_at_the_far_clip_it_finds_and_records_it(floor, tmp_path, capsys):
+    ds = load_dataset(floor)
+    cfg = dataclasses.replace(preset("efficient4d").scaled(4), num_gaussians=300, confidence=False)
+    top = next(i for i, v in enumerate(ds.train) if v.view_id == TOP)
+    tr = Trainer(ds, dataclasses.replace(cfg, far_clip=6.95), tmp_path / "a.safetensors", progress=False)
+    assert tr.far_plane == 6.95
+    assert tr._loss_weights(top, 1) == (None, None, None)  # the clip explains the conflicts: their loss is back
+    tr.run()
+    from splatreel.checkpoint import load_checkpoint
+
+    assert load_checkpoint(tmp_path / "a.safetensors").training["far_clip_depth"] == 6.95
+    assert tr.evaluate_test()["far_clip"] == 6.95
+    # resumed, it keeps its clip; 'none' never looks for one
+    resumed = Trainer(ds, dataclasses.replace(cfg, iters=6, far_clip=6.95), tmp_path / "a.safetensors",
+                      resume=True, progress=False)
+    assert resumed.far_plane == 6.95
+    off = Trainer(ds, dataclasses.replace(cfg, far_clip="none"), tmp_path / "b.safetensors", progress=False)
+    off.run()
+    assert off.far_clip.depth is None and load_checkpoint(tmp_path / "b.safetensors").training["far_clip_depth"] is None
+    assert float(off._loss_weights(top, 1)[2].min()) == 0.0
+    # auto looks at FAR_CLIP_AT of the run, once
+    auto = Trainer(ds, cfg, tmp_path / "c.safetensors", progress=False)
+    assert auto.far_clip is None
+    auto.run()
+    assert auto.far_clip is not None
+
+
+def test_eval_cli_renders_at_the_checkpoints_far_clip(floor, tmp_path, capsys):
+    out = tmp_path / "m.safetensors"
+    assert main(["train", str(floor), "--out", str(out), "--iters", "2", "--num-gaussians", "200", "--quiet",
+                 "--far-clip", "6.95"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(out), str(floor)]) == 0
+    assert "far clip at depth 6.95" in capsys.readouterr().out
+    assert main(["eval", str(out), str(floor), "--far-clip", "none"]) == 0
+    assert "far clip" not in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["eval", str(out), str(floor), "--far-clip", "-1"])
+    assert "auto, none or a positive camera depth" in capsys.readouterr().err

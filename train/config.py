@@ -28,6 +28,8 @@ MOTIONS = ("linear", "quadratic", "nodes", "auto")
 NODE_TEMPLATES = ("auto", "on", "off")
 #: How densification splits a large Gaussian (`DensifyConfig.split`).
 SPLITS = ("spacetime", "space")
+#: Share of the run (of its iterations, or of its time budget's) at which far_clip 'auto' reads the clip off the model.
+FAR_CLIP_AT = 0.3
 
 
 @dataclass
@@ -113,6 +115,9 @@ class TrainConfig:
     #: Train on every pixel's alpha as given even where the views contradict each other (`alpha_conflicts`);
     #: by default transparent pixels that contradict surfaces other views see get no loss.
     strict_alpha: bool = False
+    #: The far clip the capture's alpha was cut at, a camera depth (`train.far_clip`): 'auto' reads it off the model
+    #: at `FAR_CLIP_AT` of the run where the views' alpha disagree, 'none' renders everything, or a number.
+    far_clip: str | float = "auto"
     #: Temporal smoothness weight (velocity of each Gaussian against its spatial neighbours'; 0: off).
     smooth_weight: float = 0.0
     #: Static-to-dynamic (SV4D): the first `static_iters` steps fit only the first frame's views, time frozen.

@@ -7,6 +7,7 @@ is a pure function elsewhere in this package. A run writes ``OUT`` (a splatreel 
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from tqdm import tqdm
 
 from splatreel.cameras import DatasetView
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
+from splatreel.constants import FAR_PLANE
 from splatreel.covariance import alive_at, condition_on_time
 from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
@@ -27,7 +29,8 @@ from splatreel.rasterize import rasterize
 
 from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
-from .config import MOTIONS, TrainConfig
+from .far_clip import FarClip, estimate_far_clip
+from .config import FAR_CLIP_AT, MOTIONS, TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
 from .evaluate import evaluate, target_bytes, target_from_bytes, view_bytes
@@ -119,6 +122,9 @@ class Trainer:
         self.nodes: Nodes | None = None  # motion 'nodes', from the flow step on
         #: motion 'nodes' or 'auto': what the switch to nodes decided (`train.flow_step`), None before it
         self.node_outcome: dict | None = None
+        #: the capture's far clip, once known (`find_far_clip`): training and evaluation render with it
+        self.far_clip: FarClip | None = {"auto": None, "none": FarClip(None)}.get(config.far_clip) \
+            if isinstance(config.far_clip, str) else FarClip(float(config.far_clip), given=True)
         if resume:
             self._resume()
         else:
@@ -208,6 +214,8 @@ class Trainer:
         if st.get("nodes"):
             self.nodes = Nodes.from_state(st["nodes"], *self._node_lrs(), self.device)
         self.node_outcome = st.get("node_outcome")
+        if st.get("far_clip"):
+            self.far_clip = FarClip(**st["far_clip"])
         self.generator.set_state(st["generator"])
         self.step = int(st["step"])
         self.elapsed_before = float(st.get("elapsed", 0.0))
@@ -300,9 +308,9 @@ class Trainer:
         if key not in self._pixel_weight:
             if i >= len(self.ds.train):
                 w = self.inbetween[i - len(self.ds.train)].trust
-            else:
-                w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected else \
-                    self.alpha_conflicts.weight(self.ds.train[i])
+            else:  # a far clip explains the conflicts: the images are right as they are, rendered at it
+                w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected or self.far_plane < FAR_PLANE \
+                    else self.alpha_conflicts.weight(self.ds.train[i])
             if w is not None and factor > 1:
                 import cv2
 
@@ -325,6 +333,8 @@ class Trainer:
         deg, deg_t = active_sh(v, cfg)
         if not self._flow_motion_done and self._flow_motion_due(v):
             self.set_flow_motion()
+        if self.far_clip is None and v >= FAR_CLIP_AT * cfg.iters:
+            self.find_far_clip()
         factor = self._resolution_factor(v)
         static = v < cfg.static_iters
         losses, errors = [], []  # tensors, read once per step: on a GPU each read waits for the device
@@ -338,7 +348,7 @@ class Trainer:
             target, mask = self._target(i, factor)
             shown = alive_at(view.time, native.t_means.detach(), var_t)
             g = model.slice(view.time, sh_degree_t=deg_t, rows=shown)
-            out = rasterize(g, view.camera, self.bg, sh_degree=deg)
+            out = rasterize(g, view.camera, self.bg, sh_degree=deg, far_plane=self.far_plane)
             if cfg.densify.enabled:
                 out.means2d.retain_grad()
             loss = image_loss(out.rgb, out.alpha, target, mask, cfg.lambda_l1, cfg.lambda_dssim, cfg.lambda_mask,
@@ -393,6 +403,24 @@ class Trainer:
         if cfg.lambda_scale_ratio and len(self.params["log_scales"]):  # the mean over none would be NaN
             terms.append(cfg.lambda_scale_ratio * scale_ratio_loss(self.params["log_scales"], cfg.max_scale_ratio))
         return sum(terms) if terms else None
+
+    @property
+    def far_plane(self) -> float:
+        """The camera depth the renders are cut at: the capture's far clip, else none (`FAR_PLANE`)."""
+        return FAR_PLANE if self.far_clip is None or self.far_clip.depth is None else self.far_clip.depth
+
+    def find_far_clip(self) -> FarClip:
+        """Decide the capture's far clip, once (`train.far_clip`): with far_clip 'auto' where the views' alpha
+        disagree, the depth the model's surfaces say the alpha was cut at (the disagreeing pixels then get their
+        loss back); else none."""
+        found = FarClip(None)
+        if self.cfg.far_clip == "auto" and self.alpha_conflicts.detected and not self.cfg.strict_alpha:
+            found = estimate_far_clip(self.model().to("cpu"), self.ds.train, self.bg.cpu())
+        self.far_clip = found
+        self._pixel_weight.clear()
+        if self.progress and self.alpha_conflicts.detected:
+            tqdm.write(f"splatreel train: {found.describe()}")
+        return found
 
     def _flow_motion_due(self, vstep: float) -> bool:
         at = self.cfg.flow_motion_at
@@ -470,7 +498,8 @@ class Trainer:
         training = {**self.cfg.to_dict(), "iteration": self.step, "dataset": str(self.ds.root),
                     "layout": self.ds.layout, "background_reason": self.ds.background_reason,
                     "alpha_disagreement": round(found.worst_share, 4) if found.checked else None,
-                    "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha), "nodes": self.node_outcome}
+                    "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha), "nodes": self.node_outcome,
+                    "far_clip_depth": None if self.far_plane >= FAR_PLANE else self.far_plane}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
                         provenance={"tool": "splatreel train", "preset": self.cfg.preset, "up_axis": self.ds.up},
                         training=training,
@@ -480,7 +509,8 @@ class Trainer:
                  "elapsed": self.elapsed(), "n_initial": self.n_initial,
                  "losses": self.losses, "strategy": {k: v.cpu() for k, v in self.strategy_state.items()},
                  "params": trained, "nodes": None if self.nodes is None else self.nodes.state_dict(),
-                 "node_outcome": self.node_outcome}
+                 "node_outcome": self.node_outcome,
+                 "far_clip": None if self.far_clip is None else dataclasses.asdict(self.far_clip)}
         with atomic_path(state_path(self.out), force=True) as tmp:
             torch.save(state, tmp)
         return len(model)
@@ -524,4 +554,4 @@ class Trainer:
         if not self.source.test:
             return None
         return evaluate(self.dataset_model().to(self.device), self.source.test, self.source.background, self.device,
-                        progress=self.progress)
+                        progress=self.progress, far_plane=self.far_plane)

@@ -9,7 +9,7 @@ HELP = "render a dataset's test views with a model and report PSNR / SSIM per vi
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splatreel.argtypes import count
+    from splatreel.argtypes import argtype, count, parse_far_clip
 
     p.add_argument("checkpoint", metavar="CKPT", help="model file")
     p.add_argument("data", metavar="DATA", help="dataset folder")
@@ -22,6 +22,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="dataset layout (default auto: detected from the folder, as train does)")
     p.add_argument("--background", type=float, nargs=3, metavar=("R", "G", "B"),
                    help="background colour (default: the checkpoint's)")
+    p.add_argument("--far-clip", type=argtype(parse_far_clip), default="auto", metavar="auto|none|D",
+                   help="cull what lies at or beyond this camera depth, as the images' alpha was cut (default auto: "
+                        "the far clip the checkpoint's training found, if any; none: render everything)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
 
 
@@ -40,11 +43,14 @@ def run(args: argparse.Namespace) -> int:
     if not views:
         raise DatasetError(f"{args.data}: no {args.split} views (use --split train for generated data)")
     bg = tuple(args.background) if args.background else ck.background
-    res = evaluate(ck.model, views, bg, progress=True)
+    far = ck.training.get("far_clip_depth") if args.far_clip == "auto" else \
+        None if args.far_clip == "none" else args.far_clip
+    res = evaluate(ck.model, views, bg, progress=True, far_plane=far)
     res.update({"checkpoint": str(args.checkpoint), "dataset": str(args.data), "split": args.split,
                 "downscale": args.downscale})
+    clip = "" if far is None else f"  (far clip at depth {far:g})"
     print(f"{args.split} views: {res['num_views']}  PSNR {res['psnr']:.2f} dB  SSIM {res['ssim']:.4f}  "
-          f"({res['seconds']:.1f} s)")
+          f"({res['seconds']:.1f} s){clip}")
     if args.out:
         atomic_write_json(args.out, res, force=args.force)
     return 0

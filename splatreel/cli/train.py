@@ -24,8 +24,9 @@ def _ramp(text: str) -> tuple[tuple[float, int], ...]:
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    from splatreel.argtypes import count, fraction, non_negative_count, non_negative_number, positive_number
-    from splatreel.train.config import MOTIONS, NODE_TEMPLATES, PRESETS, SPLITS
+    from splatreel.argtypes import (argtype, count, fraction, non_negative_count, non_negative_number, parse_far_clip,
+                                    positive_number)
+    from splatreel.train.config import FAR_CLIP_AT, MOTIONS, NODE_TEMPLATES, PRESETS, SPLITS
     from splatreel.train.recipe import (CLIP_DURATION, FLOW_MOTION_AT, INBETWEEN_SHARE, MATRIX_MINUTES,
                                         ONE_VIEW_MINUTES, ONE_VIEW_NODE_KEY_EVERY, SCALE_RATIO_WEIGHT)
 
@@ -53,6 +54,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strict-alpha", action="store_true",
                    help="train on the alpha as given even where views contradict each other (default: transparent "
                         "pixels whose rays cross a surface other views see opaque get no loss)")
+    p.add_argument("--far-clip", type=argtype(parse_far_clip), metavar="auto|none|D",
+                   help="the camera depth the images' alpha was cut at (a renderer's far clip: a floor opaque up to "
+                        "it, transparent past it): training and the test views are rendered with it. auto: where the "
+                        f"views' alpha disagree, read off the model at {100 * FAR_CLIP_AT:g}%% of the run; none: "
+                        "render everything (default: auto; a resumed run keeps its own)")
     p.add_argument("--num-gaussians", type=count, help="Gaussians at initialisation (default: the preset's; train prints it)")
     p.add_argument("--max-gaussians", type=count, help="cap on densification (default: the recipe's)")
     p.add_argument("--no-densify", action="store_true", help="keep the initial Gaussians (no clone, split or prune)")
@@ -164,6 +170,7 @@ def config_from_args(args: argparse.Namespace, dataset=None, resumed: dict | Non
             "inbetween_share": args.inbetween_share, "motion": None if resumed else args.motion,
             "node_template": None if resumed else args.node_template,
             "node_key_every": None if resumed else args.node_key_every,
+            "far_clip": None if resumed else args.far_clip,
             "colour_tracks": None if resumed or args.colour_tracks is None else args.colour_tracks == "on"}
     if args.no_confidence:
         over["confidence"] = False
@@ -279,6 +286,8 @@ def run(args: argparse.Namespace) -> int:
     line = node_outcome_line(trainer.node_outcome, cfg.motion)
     if line and not args.resume:
         print(f"splatreel train: {line}")
+    if trainer.far_clip is not None and trainer.alpha_conflicts.detected and not args.resume:
+        print(f"splatreel train: {trainer.far_clip.describe()}")
     msg = f"splatreel train: wrote {result.out} ({result.n_gaussians:,} Gaussians, {result.iterations} iterations, " \
           f"{result.seconds:.1f} s)"
     done = trainer.finished()

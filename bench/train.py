@@ -266,9 +266,9 @@ def main() -> None:
             seconds = time.perf_counter() - t  # includes the alpha test, confidence maps and set-up
             ev = tr.evaluate_test()
             model = tr.dataset_model()  # what the checkpoint holds
-            clip = None if tr.far_clip is None else tr.far_clip.depth  # the capture's, where training found one
-            on_black = evaluate(model, ds.test, (0.0, 0.0, 0.0), progress=False, far_plane=clip)["psnr"]
-            fit = evaluate(model, ds.train[::FIT_EVERY], ds.background, progress=False, far_plane=clip)["psnr"]
+            clip = tr.far_clip_depth  # the capture's, where training found one
+            on_black = evaluate(model, ds.test, (0.0, 0.0, 0.0), progress=False, far_clip=clip)["psnr"]
+            fit = evaluate(model, ds.train[::FIT_EVERY], ds.background, progress=False, far_clip=clip)["psnr"]
             base = baselines(ds.test, ds.train, ds.background)
             bound = upper_bound(sample, ds, None if config is None else config.frames)
             rows.append({"sample": name, "regime": "one camera per time" if traits.one_view_per_time

@@ -16,7 +16,7 @@ vendored by fudan-zvg/4d-gaussian-splatting; gsplat ``gsplat/cuda/_torch_impl.py
    ``[-(cx/fx + 0.3 tan_fovx), (W - cx)/fx + 0.3 tan_fovx]`` (same for y; 1.3 tan_fov when centred), centres
    ``(fx x/z + cx, fy y/z + cy)`` from the unclamped x, y; ``+EPS2D`` on the diagonal (no opacity
    compensation); conic = inverse; radius ``ceil(3 sqrt(λmax))`` with λmax = mid + sqrt(max(0.1, mid² - det)).
-2. **Culling** (radius 0): not `visible` (temporal cull), behind the near plane, opacity < 1/255 (can never reach
+2. **Culling** (radius 0): not `visible` (temporal cull), behind the near plane or beyond a far plane, opacity < 1/255 (can never reach
    alpha 1/255), singular 2D covariance, or the square ``mean ± radius`` box entirely off the image.
 3. **Binning**: 16x16 tiles; a Gaussian goes to the tiles of its ``mean ± radius`` box (gsplat's
    floor/ceil rule), minus the tiles its alpha >= 1/255 ellipse cannot reach (no effect on the image);
@@ -351,7 +351,7 @@ def _check_gaussians(g: Gaussians3D, sh_degree: int | None) -> None:
 
 def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float] | Tensor = (0.0, 0.0, 0.0), *,
               sh_degree: int | None = None, num_threads: int | None = None,
-              far_plane: float = FAR_PLANE) -> RenderOutput:
+              far_plane: float | None = None) -> RenderOutput:
     """Render `gaussians` seen by `camera` over a constant `background`.
 
     Args:
@@ -361,7 +361,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
         sh_degree: evaluate colours at this SH degree at most (default: the model's).
         num_threads: CPU threads for the compositing kernels (default: numba's setting, i.e. all cores).
         far_plane: Gaussians whose centre's camera depth is at or beyond this are culled, as the near plane culls
-            (default: none in practice). A capture whose alpha was cut at a far clip is compared at its clip.
+            (None: no far plane). A capture whose alpha was cut at a far clip is compared at its clip.
     Returns:
         `RenderOutput` (see there); rgb/alpha/depth are differentiable w.r.t. every input tensor.
     Raises:
@@ -379,7 +379,7 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
     # 1. cheap culling first (time, near plane, opacity); the survivors ("front", M of them) are projected
     with torch.no_grad():
         z_all = camera_depths(g.means.detach(), camera)
-        front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < far_plane) & (g.opacities >= ALPHA_THRESHOLD)
+        front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < (FAR_PLANE if far_plane is None else far_plane)) & (g.opacities >= ALPHA_THRESHOLD)
     fused = all(x.device.type == "cpu" and x.dtype == torch.float32 for x in (g.means, g.covariances))
     if fused:  # every row projected in place by the numba kernel (no gather / scatter); culled rows are inert
         from .projecting import project_fused

@@ -2,11 +2,13 @@
 not on consistent data, and turned into zero loss weights on the contradicting pixels unless --strict-alpha."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 
 from splatreel.cli import main
+from splatreel.errors import SplatreelError
 from splatreel.samples import FloorConfig, write_dataset
 from splatreel.samples.dataset import DatasetConfig
 from splatreel.train.alpha_conflicts import describe, find_alpha_conflicts
@@ -176,7 +178,7 @@ def test_trainer_renders_at_the_far_clip_it_finds_and_records_it(floor, tmp_path
     cfg = dataclasses.replace(preset("efficient4d").scaled(4), num_gaussians=300, confidence=False)
     top = next(i for i, v in enumerate(ds.train) if v.view_id == TOP)
     tr = Trainer(ds, dataclasses.replace(cfg, far_clip=6.95), tmp_path / "a.safetensors", progress=False)
-    assert tr.far_plane == 6.95
+    assert tr.far_clip_depth == 6.95
     assert tr._loss_weights(top, 1) == (None, None, None)  # the clip explains the conflicts: their loss is back
     tr.run()
     from splatreel.checkpoint import load_checkpoint
@@ -186,16 +188,19 @@ def test_trainer_renders_at_the_far_clip_it_finds_and_records_it(floor, tmp_path
     # resumed, it keeps its clip; 'none' never looks for one
     resumed = Trainer(ds, dataclasses.replace(cfg, iters=6, far_clip=6.95), tmp_path / "a.safetensors",
                       resume=True, progress=False)
-    assert resumed.far_plane == 6.95
+    assert resumed.far_clip_depth == 6.95
     off = Trainer(ds, dataclasses.replace(cfg, far_clip="none"), tmp_path / "b.safetensors", progress=False)
     off.run()
     assert off.far_clip.depth is None and load_checkpoint(tmp_path / "b.safetensors").training["far_clip_depth"] is None
     assert float(off._loss_weights(top, 1)[2].min()) == 0.0
-    # auto looks at FAR_CLIP_AT of the run, once
+    # auto looks at FAR_CLIP_AT of the run (step 2 of 4 here), once
     auto = Trainer(ds, cfg, tmp_path / "c.safetensors", progress=False)
+    auto.run(stop_at=1)
     assert auto.far_clip is None
     auto.run()
     assert auto.far_clip is not None
+    with pytest.raises(SplatreelError, match="far_clip must be 'auto', 'none' or a positive camera depth"):
+        Trainer(ds, dataclasses.replace(cfg, far_clip="off"), tmp_path / "d.safetensors", progress=False)
 
 
 def test_eval_cli_renders_at_the_checkpoints_far_clip(floor, tmp_path, capsys):
@@ -203,8 +208,9 @@ def test_eval_cli_renders_at_the_checkpoints_far_clip(floor, tmp_path, capsys):
     assert main(["train", str(floor), "--out", str(out), "--iters", "2", "--num-gaussians", "200", "--quiet",
                  "--far-clip", "6.95"]) == 0
     capsys.readouterr()
-    assert main(["eval", str(out), str(floor)]) == 0
+    assert main(["eval", str(out), str(floor), "--out", str(tmp_path / "e.json")]) == 0
     assert "far clip at depth 6.95" in capsys.readouterr().out
+    assert json.loads((tmp_path / "e.json").read_text())["far_clip"] == 6.95
     assert main(["eval", str(out), str(floor), "--far-clip", "none"]) == 0
     assert "far clip" not in capsys.readouterr().out
     with pytest.raises(SystemExit):

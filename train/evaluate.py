@@ -7,7 +7,6 @@ import time
 import numpy as np
 import torch
 
-from splatreel.constants import FAR_PLANE
 from splatreel.datasets import DatasetImage
 from splatreel.model import Model
 from splatreel.rasterize import rasterize
@@ -47,31 +46,32 @@ def target_bytes(view: DatasetImage, background) -> np.ndarray:
     return (view_target(view, background)[0].numpy() * 255 + 0.5).astype(np.uint8)
 
 
-def render_view(model: Model, view: DatasetImage, background, device="cpu", far_plane: float = FAR_PLANE
+def render_view(model: Model, view: DatasetImage, background, device="cpu", far_clip: float | None = None
                 ) -> torch.Tensor:
-    """``[H, W, 3]`` image of `model` at the view's camera and time (cut at `far_plane`, the capture's far clip)."""
+    """``[H, W, 3]`` image of `model` at the view's camera and time, cut at the capture's `far_clip` (camera depth;
+    None: none)."""
     with torch.no_grad():
-        return rasterize(model.slice(view.time), view.camera, background, far_plane=far_plane).rgb
+        return rasterize(model.slice(view.time), view.camera, background, far_plane=far_clip).rgb
 
 
 def evaluate(model: Model, views: list[DatasetImage], background, device="cpu", progress: bool = False,
-             far_plane: float | None = None) -> dict:
+             far_clip: float | None = None) -> dict:
     """Per-view and mean PSNR / SSIM of `model` rendered at `views` (top-level keys `psnr`, `ssim`, `lpips`,
-    `per_view`, `seconds`), cut at `far_plane` when the capture has a far clip (`splatreel.train.far_clip`)."""
+    `per_view`, `seconds`, `far_clip`), cut at the capture's `far_clip` when it has one (`splatreel.train.far_clip`)."""
     from tqdm import tqdm
 
     start = time.perf_counter()
     per_view = []
     for v in tqdm(views, desc="eval", unit="view", disable=not progress, leave=False):
         target, _ = view_target(v, background, device)
-        img = render_view(model, v, background, device, FAR_PLANE if far_plane is None else far_plane).clamp(0, 1)
+        img = render_view(model, v, background, device, far_clip).clamp(0, 1)
         per_view.append({"name": v.name, "view": v.view_id, "frame": v.frame_id, "time": v.time,
                          "psnr": psnr(img, target), "ssim": float(ssim(img, target))})
     return {
         "psnr": float(np.mean([p["psnr"] for p in per_view])) if per_view else None,
         "ssim": float(np.mean([p["ssim"] for p in per_view])) if per_view else None,
         "lpips": None, "lpips_note": LPIPS_NOTE, "num_views": len(per_view), "per_view": per_view,
-        "far_clip": far_plane,
+        "far_clip": far_clip,
         "seconds": time.perf_counter() - start,
     }
 

@@ -11,8 +11,9 @@ One depth explains it when the model's surfaces nearer than it are where the ima
 are where they are transparent. `far_clip_from_depths` scores each candidate depth by the pixels it gets wrong
 (opaque image, model surface at or beyond the clip; transparent image, model surface nearer) and keeps the best
 one (the most pixels explained less those lost) only when it explains most of the pixels the model draws and the
-images leave empty (`EXPLAINED`) at the cost of few of the opaque ones (`COST`). Depths are the rasterizer's: camera-space z of the Gaussians'
-centres, so the clip culls at that depth as the rasterizer's near plane does (`rasterize(..., far_plane=)`).
+images leave empty (`EXPLAINED`) at the cost of few of the opaque ones (`COST`). Opaque and transparent are
+`alpha_conflicts`' thresholds. Depths are the rasterizer's: camera-space z of the Gaussians' centres, so the clip
+culls at that depth as the rasterizer's near plane does (`rasterize(..., far_plane=)`).
 """
 
 from __future__ import annotations
@@ -24,12 +25,13 @@ import torch
 
 from splatreel.datasets import DatasetImage
 from splatreel.model import Model
+from splatreel.errors import SplatreelError
 from splatreel.rasterize import rasterize
+
+from .alpha_conflicts import OPAQUE, TRANSPARENT
 
 #: A pixel where the model's alpha reaches this is a model surface (at its expected depth).
 DRAWN = 0.5
-#: Image alpha (0-255) at or above which a pixel is opaque, below which it is transparent.
-OPAQUE, TRANSPARENT = 230, 25
 #: The clip is kept only when it explains this share of the drawn-but-transparent pixels ...
 EXPLAINED = 0.5
 #: ... and puts at most this share of the drawn opaque pixels beyond it (a surface the views see at grazing
@@ -61,6 +63,22 @@ class FarClip:
         return (f"far clip at camera depth {self.depth:.3f} (it explains {100 * self.explained:.0f}% of the "
                 f"surfaces the images leave transparent and removes {100 * self.cost:.2f}% of those they show; "
                 "test views and the checkpoint's evaluation are rendered with it; --far-clip to change)")
+
+
+def initial_far_clip(setting: str | float) -> FarClip | None:
+    """What a run knows of the clip before it trains (`TrainConfig.far_clip`): nothing yet with 'auto' (None),
+    that there is none with 'none', the given depth otherwise."""
+    if setting == "auto":
+        return None
+    if setting == "none":
+        return FarClip(None)
+    try:
+        depth = float(setting)
+    except (TypeError, ValueError):
+        depth = float("nan")
+    if not depth > 0 or depth == float("inf"):
+        raise SplatreelError(f"far_clip must be 'auto', 'none' or a positive camera depth, got {setting!r}")
+    return FarClip(depth, given=True)
 
 
 def far_clip_from_depths(depth: np.ndarray, drawn: np.ndarray, image_alpha: np.ndarray) -> FarClip:

@@ -18,7 +18,6 @@ from tqdm import tqdm
 
 from splatreel.cameras import DatasetView
 from splatreel.checkpoint import load_checkpoint, save_checkpoint
-from splatreel.constants import FAR_PLANE
 from splatreel.covariance import alive_at, condition_on_time
 from splatreel.datasets import Dataset, DatasetImage
 from splatreel.errors import CheckpointError, OutputExistsError, SplatreelError
@@ -29,7 +28,7 @@ from splatreel.rasterize import rasterize
 
 from . import strategy
 from .alpha_conflicts import AlphaConflicts, find_alpha_conflicts
-from .far_clip import FarClip, estimate_far_clip
+from .far_clip import FarClip, estimate_far_clip, initial_far_clip
 from .config import FAR_CLIP_AT, MOTIONS, TrainConfig
 from .confidence import confidence_maps
 from .data import camera_videos, downscale_view, relative_name
@@ -123,8 +122,7 @@ class Trainer:
         #: motion 'nodes' or 'auto': what the switch to nodes decided (`train.flow_step`), None before it
         self.node_outcome: dict | None = None
         #: the capture's far clip, once known (`find_far_clip`): training and evaluation render with it
-        self.far_clip: FarClip | None = {"auto": None, "none": FarClip(None)}.get(config.far_clip) \
-            if isinstance(config.far_clip, str) else FarClip(float(config.far_clip), given=True)
+        self.far_clip: FarClip | None = initial_far_clip(config.far_clip)
         if resume:
             self._resume()
         else:
@@ -309,7 +307,7 @@ class Trainer:
             if i >= len(self.ds.train):
                 w = self.inbetween[i - len(self.ds.train)].trust
             else:  # a far clip explains the conflicts: the images are right as they are, rendered at it
-                w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected or self.far_plane < FAR_PLANE \
+                w = None if self.cfg.strict_alpha or not self.alpha_conflicts.detected or self.far_clip_depth \
                     else self.alpha_conflicts.weight(self.ds.train[i])
             if w is not None and factor > 1:
                 import cv2
@@ -348,7 +346,7 @@ class Trainer:
             target, mask = self._target(i, factor)
             shown = alive_at(view.time, native.t_means.detach(), var_t)
             g = model.slice(view.time, sh_degree_t=deg_t, rows=shown)
-            out = rasterize(g, view.camera, self.bg, sh_degree=deg, far_plane=self.far_plane)
+            out = rasterize(g, view.camera, self.bg, sh_degree=deg, far_plane=self.far_clip_depth)
             if cfg.densify.enabled:
                 out.means2d.retain_grad()
             loss = image_loss(out.rgb, out.alpha, target, mask, cfg.lambda_l1, cfg.lambda_dssim, cfg.lambda_mask,
@@ -405,9 +403,9 @@ class Trainer:
         return sum(terms) if terms else None
 
     @property
-    def far_plane(self) -> float:
-        """The camera depth the renders are cut at: the capture's far clip, else none (`FAR_PLANE`)."""
-        return FAR_PLANE if self.far_clip is None or self.far_clip.depth is None else self.far_clip.depth
+    def far_clip_depth(self) -> float | None:
+        """The camera depth the renders are cut at (the capture's far clip), None while there is none."""
+        return None if self.far_clip is None else self.far_clip.depth
 
     def find_far_clip(self) -> FarClip:
         """Decide the capture's far clip, once (`train.far_clip`): with far_clip 'auto' where the views' alpha
@@ -417,9 +415,7 @@ class Trainer:
         if self.cfg.far_clip == "auto" and self.alpha_conflicts.detected and not self.cfg.strict_alpha:
             found = estimate_far_clip(self.model().to("cpu"), self.ds.train, self.bg.cpu())
         self.far_clip = found
-        self._pixel_weight.clear()
-        if self.progress and self.alpha_conflicts.detected:
-            tqdm.write(f"splatreel train: {found.describe()}")
+        self._pixel_weight.clear()  # the conflicts' weights go where a clip explains them
         return found
 
     def _flow_motion_due(self, vstep: float) -> bool:
@@ -499,7 +495,7 @@ class Trainer:
                     "layout": self.ds.layout, "background_reason": self.ds.background_reason,
                     "alpha_disagreement": round(found.worst_share, 4) if found.checked else None,
                     "alpha_ignored": bool(found.detected and not self.cfg.strict_alpha), "nodes": self.node_outcome,
-                    "far_clip_depth": None if self.far_plane >= FAR_PLANE else self.far_plane}
+                    "far_clip_depth": self.far_clip_depth}
         save_checkpoint(self.out, model, background=self.ds.background, force=True,
                         provenance={"tool": "splatreel train", "preset": self.cfg.preset, "up_axis": self.ds.up},
                         training=training,
@@ -554,4 +550,4 @@ class Trainer:
         if not self.source.test:
             return None
         return evaluate(self.dataset_model().to(self.device), self.source.test, self.source.background, self.device,
-                        progress=self.progress, far_plane=self.far_plane)
+                        progress=self.progress, far_clip=self.far_clip_depth)

@@ -43,9 +43,8 @@ def run(args: argparse.Namespace) -> int:
     if not views:
         raise DatasetError(f"{args.data}: no {args.split} views (use --split train for generated data)")
     bg = tuple(args.background) if args.background else ck.background
-    far = ck.training.get("far_clip_depth") if args.far_clip == "auto" else \
-        None if args.far_clip == "none" else args.far_clip
-    res = evaluate(ck.model, views, bg, progress=True, far_plane=far)
+    far = {"auto": ck.training.get("far_clip_depth"), "none": None}.get(args.far_clip, args.far_clip)
+    res = evaluate(ck.model, views, bg, progress=True, far_clip=far)
     res.update({"checkpoint": str(args.checkpoint), "dataset": str(args.data), "split": args.split,
                 "downscale": args.downscale})
     clip = "" if far is None else f"  (far clip at depth {far:g})"

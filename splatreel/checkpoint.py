@@ -4,7 +4,8 @@ Layout
 ------
 * Tensors: the model's per-Gaussian tensors under their field names (`Gaussians4D.TENSORS` and those of its
   `OPTIONAL_TENSORS` it holds, `KeyframedGaussians.TENSORS`, or for skinned Gaussians the native ones and
-  `splatreel.skinned.NODE_TENSORS`), float32 or float64, contiguous.
+  `splatreel.skinned.NODE_TENSORS` and `SKIN_TENSORS`: a checkpoint without the skin's derives it from the
+  canonical means), float32 or float64, contiguous.
 * Metadata: the safetensors header's ``__metadata__`` holds one key ``"splatreel"`` whose value is a JSON object::
 
     {"format": "splatreel", "format_version": 1, "kind": "gaussians4d" | "keyframed" | "skinned",

@@ -33,6 +33,9 @@ from .model import Gaussians3D, Gaussians4D, _check, take_rows
 NODES_PER_GAUSSIAN = 4
 #: Node tensors of a checkpoint, after the native ones.
 NODE_TENSORS = ("node_canonical", "node_times", "node_positions", "node_rotations")
+#: The skin's tensors of a checkpoint, when it holds one (written since 2026-12; older ones derive it on load): each
+#: Gaussian's nodes (their indices as float32, exact below 2^24, as every checkpoint tensor is float) and weights.
+SKIN_TENSORS = ("skin_nodes", "skin_weights")
 
 
 def key_segments(times: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
@@ -147,7 +150,7 @@ class SkinnedGaussians:
             unnormalised (normalised on use).
         node_sigma: the std-dev of the blend weights' Gaussian of the distance (world units).
         skin: each Gaussian's nodes ``[N, K]`` and weights ``[N, K]``; derived from the canonical means when None
-            (a trainer passes its own, kept between densifications).
+            (a trainer passes its own, kept between densifications, and the checkpoint records it).
     """
 
     gaussians: Gaussians4D
@@ -162,13 +165,15 @@ class SkinnedGaussians:
     with_velocities: bool = True
 
     TENSORS = Gaussians4D.TENSORS + NODE_TENSORS
-    OPTIONAL_TENSORS = Gaussians4D.OPTIONAL_TENSORS
+    OPTIONAL_TENSORS = Gaussians4D.OPTIONAL_TENSORS + SKIN_TENSORS
 
     def __post_init__(self) -> None:
         self.node_sigma = float(self.node_sigma)
         self._validate_nodes()  # the Gaussians validated themselves when made (a trainer makes this every step)
         if self.skin is None:
             self.skin = skin_weights(self.gaussians.means, self.node_canonical, self.node_sigma)
+        else:
+            self._validate_skin()
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -224,6 +229,14 @@ class SkinnedGaussians:
                    f"{name} has dtype {getattr(self, name).dtype}, expected float32/64")
         _check(bool((self.node_times[1:] > self.node_times[:-1]).all()), "node key times must be strictly increasing")
         _check(self.node_sigma > 0, f"node_sigma must be positive, got {self.node_sigma}")
+
+    def _validate_skin(self) -> None:
+        nodes, weights = self.skin
+        n = len(self.gaussians)
+        _check(nodes.dim() == 2 and nodes.shape[0] == n and nodes.shape[1] >= 1 and weights.shape == nodes.shape,
+               f"the skin has nodes {list(nodes.shape)} and weights {list(weights.shape)}, expected [{n}, K] each")
+        _check(not nodes.is_floating_point() and bool(((nodes >= 0) & (nodes < self.num_nodes)).all()),
+               f"the skin's node indices must be integers in [0, {self.num_nodes})")
 
     def poses(self, t: float) -> tuple[Tensor, Tensor]:
         """Every node's position ``[M, 3]`` and rotation ``[M, 3, 3]`` at time `t`."""
@@ -289,17 +302,24 @@ class SkinnedGaussians:
         return self.gaussians.drawn_in_clip()
 
     def tensors(self) -> dict[str, Tensor]:
-        """The native tensors, then the nodes' (`NODE_TENSORS`)."""
-        return {**self.gaussians.tensors(), **{name: getattr(self, name) for name in NODE_TENSORS}}
+        """The native tensors, then the nodes' (`NODE_TENSORS`) and the skin's (`SKIN_TENSORS`)."""
+        nodes, weights = self.skin
+        return {**self.gaussians.tensors(), **{name: getattr(self, name) for name in NODE_TENSORS},
+                "skin_nodes": nodes.to(torch.float32), "skin_weights": weights}
 
     def metadata(self) -> dict:
         return {**self.gaussians.metadata(), "node_sigma": self.node_sigma}
 
     @classmethod
     def from_tensors(cls, tensors: dict[str, Tensor], meta: dict) -> "SkinnedGaussians":
-        native = {k: v for k, v in tensors.items() if k not in NODE_TENSORS}
+        native = {k: v for k, v in tensors.items() if k not in NODE_TENSORS + SKIN_TENSORS}
+        skin = None
+        if all(k in tensors for k in SKIN_TENSORS):
+            nodes = tensors["skin_nodes"]
+            _check(bool((nodes == nodes.round()).all()), "the skin's node indices must be whole numbers")
+            skin = (nodes.to(torch.int64), tensors["skin_weights"])
         return cls(Gaussians4D.from_tensors(native, meta), *(tensors[k] for k in NODE_TENSORS),
-                   node_sigma=float(meta["node_sigma"]))
+                   node_sigma=float(meta["node_sigma"]), skin=skin)
 
     def to(self, device=None, dtype=None) -> "SkinnedGaussians":
         nodes, weights = self.skin

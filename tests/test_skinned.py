@@ -2,6 +2,7 @@
 node keys, anchors, selection, and the checkpoint round trip."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -123,6 +124,24 @@ def test_checkpoint_round_trip(tmp_path):
     assert back.node_sigma == pytest.approx(0.4)
     for t in (0.0, 0.33, 1.0):
         torch.testing.assert_close(back.slice(t).means, model.slice(t).means)
+
+
+def test_the_checkpoint_keeps_a_given_skin_and_refuses_a_bad_one(tmp_path):
+    """A trainer's skin (here each Gaussian's nodes in reverse order of nearness, weights swapped alike) is what the
+    checkpoint's model draws with, not one derived afresh from the canonical means; a skin naming a node the model
+    lacks is a one-line error."""
+    spun = spinning().to(dtype=torch.float32)  # the nodes moved apart (a rigid motion draws alike with any skin)
+    model = replace(spun, node_positions=spun.node_positions + 0.3 * torch.randn(spun.node_positions.shape,
+                                                                                generator=torch.Generator().manual_seed(1)))
+    nodes, weights = model.skin
+    given = replace(model, skin=(nodes.flip(1), weights.roll(1, 1)))
+    back = load_checkpoint(save_checkpoint(tmp_path / "given.safetensors", given)).model
+    assert torch.equal(back.skin[0], given.skin[0]) and back.skin[0].dtype == torch.int64
+    torch.testing.assert_close(back.skin[1], given.skin[1])
+    assert (back.slice(0.5).means - model.slice(0.5).means).abs().max() > 1e-2  # the derived skin draws elsewhere
+    torch.testing.assert_close(back.slice(0.5).means, given.slice(0.5).means)
+    with pytest.raises(ModelError, match="node indices"):
+        replace(model, skin=(nodes + model.num_nodes, weights))
 
 
 def test_bad_node_tensors_fail_in_one_line(tmp_path):

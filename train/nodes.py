@@ -323,6 +323,10 @@ class Nodes:
         return SkinnedGaussians(gaussians, self.canonical, self.key_times, self.positions, self.rotations, self.sigma,
                                 skin=self._skin[2], with_velocities=False)
 
+    def current_skin(self, count: int) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The skin the last `skinned` drew `count` Gaussians with (nodes, weights ``[N, K]``), None if none has."""
+        return self._skin[2] if self._skin is not None and self._skin[0] == count else None
+
     def rigidity(self) -> torch.Tensor:
         return rigidity(self.canonical, self.positions, self.rotations, self.pairs, self.pair_weights, self.sigma)
 

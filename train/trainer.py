@@ -268,13 +268,16 @@ class Trainer:
                                                   rotation_convention=self.cfg.rotation_convention), self.axis)
         # Gaussians whose temporal mean drifted out of the clip draw nothing in it: the checkpoint leaves them out
         # (they stay in the resumable state, which resumes the run exactly)
-        model = model.select(model.drawn_in_clip())
+        drawn = model.drawn_in_clip()
+        model = model.select(drawn)
         if self.nodes is None:
             return model
         n = self.nodes
         keys = torch.tensor([self.source.frame_times[k] for k in self._node_keys()], dtype=torch.float32)
-        return SkinnedGaussians(model, n.canonical.cpu(), keys,
-                                n.positions.detach().cpu(), n.rotations.detach().cpu(), n.sigma)
+        skin = n.current_skin(len(drawn))  # the skin the run drew with, not one derived afresh from the means
+        return SkinnedGaussians(model, n.canonical.cpu(), keys, n.positions.detach().cpu(),
+                                n.rotations.detach().cpu(), n.sigma,
+                                skin=None if skin is None else tuple(x.cpu()[drawn] for x in skin))
 
     def _views(self, factor: int) -> list[DatasetImage]:
         if factor not in self._views_at:

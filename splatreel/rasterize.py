@@ -16,8 +16,9 @@ vendored by fudan-zvg/4d-gaussian-splatting; gsplat ``gsplat/cuda/_torch_impl.py
    ``[-(cx/fx + 0.3 tan_fovx), (W - cx)/fx + 0.3 tan_fovx]`` (same for y; 1.3 tan_fov when centred), centres
    ``(fx x/z + cx, fy y/z + cy)`` from the unclamped x, y; ``+EPS2D`` on the diagonal (no opacity
    compensation); conic = inverse; radius ``ceil(3 sqrt(λmax))`` with λmax = mid + sqrt(max(0.1, mid² - det)).
-2. **Culling** (radius 0): not `visible` (temporal cull), behind the near plane or beyond a far plane, opacity < 1/255 (can never reach
-   alpha 1/255), singular 2D covariance, or the square ``mean ± radius`` box entirely off the image.
+2. **Culling** (radius 0): not `visible` (temporal cull), behind the near plane or beyond a far plane, opacity
+   < 1/255 (can never reach alpha 1/255), singular 2D covariance, or the square ``mean ± radius`` box entirely off
+   the image.
 3. **Binning**: 16x16 tiles; a Gaussian goes to the tiles of its ``mean ± radius`` box (gsplat's
    floor/ceil rule), minus the tiles its alpha >= 1/255 ellipse cannot reach (no effect on the image);
    stable depth order, so equal depths keep their index order.
@@ -379,7 +380,8 @@ def rasterize(gaussians: Gaussians3D, camera: Camera, background: Sequence[float
     # 1. cheap culling first (time, near plane, opacity); the survivors ("front", M of them) are projected
     with torch.no_grad():
         z_all = camera_depths(g.means.detach(), camera)
-        front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < (FAR_PLANE if far_plane is None else far_plane)) & (g.opacities >= ALPHA_THRESHOLD)
+        far = FAR_PLANE if far_plane is None else far_plane
+        front = g.visible.bool() & (z_all > NEAR_PLANE) & (z_all < far) & (g.opacities >= ALPHA_THRESHOLD)
     fused = all(x.device.type == "cpu" and x.dtype == torch.float32 for x in (g.means, g.covariances))
     if fused:  # every row projected in place by the numba kernel (no gather / scatter); culled rows are inert
         from .projecting import project_fused

@@ -18,6 +18,7 @@ culls at that depth as the rasterizer's near plane does (`rasterize(..., far_pla
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,7 +77,7 @@ def initial_far_clip(setting: str | float) -> FarClip | None:
         depth = float(setting)
     except (TypeError, ValueError):
         depth = float("nan")
-    if not depth > 0 or depth == float("inf"):
+    if not (math.isfinite(depth) and depth > 0):
         raise SplatreelError(f"far_clip must be 'auto', 'none' or a positive camera depth, got {setting!r}")
     return FarClip(depth, given=True)
 

@@ -67,8 +67,16 @@ POOL = int(os.environ.get("LATE_TURNS_POOL", 3))
 #: The search steps this many frames at a time (the turn between constant per frame), scoring a candidate at every
 #: STRIDE-th frame of its POOL ahead (at least one): 1 searches and scores every frame.
 STRIDE = int(os.environ.get("LATE_TURNS_STRIDE", 1))
-#: Random search rounds: (spread in degrees of the per-frame increment, candidates).
-ROUNDS = ((8.0, 24), (3.0, 16), (1.0, 8))
+#: Random search rounds: (spread in degrees of the per-frame increment, candidates); `LATE_TURNS_CANDIDATES` in the
+#: environment scales the candidates of every round (0.5: half).
+ROUNDS = tuple((spread, max(1, round(count * float(os.environ.get("LATE_TURNS_CANDIDATES", 1)))))
+               for spread, count in ((8.0, 24), (3.0, 16), (1.0, 8)))
+#: A candidate is scored at every SCORE_EVERY-th frame of its POOL ahead (`LATE_TURNS_SCORE_EVERY`; the search still
+#: steps STRIDE frames): 2 scores frames 2, 4, 6 of 6 ahead, half the renders.
+SCORE_EVERY = int(os.environ.get("LATE_TURNS_SCORE_EVERY", 1))
+#: A key takes the searched turns only where they draw its frames at most this share of the learned poses' error
+#: (`LATE_TURNS_MARGIN`; 1: any gain).
+MARGIN = float(os.environ.get("LATE_TURNS_MARGIN", 1))
 #: Whether each key takes the searched turn on its own (True), or the group all of them or none.
 PER_KEY = True
 #: Whether the re-seating inverts each Gaussian's own blend of its nodes' poses (`late-turns-exact`: the linear
@@ -108,6 +116,8 @@ def _search(error, learned: dict, frames: int, mid: int, rng: np.random.Generato
             base = turns[k]
             step = min(STRIDE, frames - 1 - k if d > 0 else k)
             ahead = [x for x in range(k + d * step, k + d * (max(POOL, step) + 1), d * step) if 0 <= x < frames]
+            if SCORE_EVERY > 1 and step == 1:  # every SCORE_EVERY-th frame ahead, the farthest one kept
+                ahead = ahead[::-1][::SCORE_EVERY][::-1]
 
             def score(inc: np.ndarray) -> float:
                 return float(np.mean([error(_matrix(inc * abs(x - k)) @ base, x) for x in ahead]))
@@ -131,9 +141,15 @@ def _keys_taken(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> list
     """Per key, whether it takes the searched turns: they draw the frames nearest it better (`PER_KEY`), or all
     frames of the clip."""
     if not PER_KEY:
-        return [bool(searched.sum() < kept.sum())] * len(keys)
+        return [bool(searched.sum() < MARGIN * kept.sum())] * len(keys)
+    return [bool(s < MARGIN * k) for s, k in zip(*_key_errors(searched, kept, keys))]
+
+
+def _key_errors(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> tuple[list[float], list[float]]:
+    """Per key, the summed error of the frames nearest it with the searched turns and with the learned poses."""
     near = nearest_key(torch.arange(len(searched), dtype=torch.float64), torch.tensor(keys, dtype=torch.float64))
-    return [bool(searched[near == ki].sum() < kept[near == ki].sum()) for ki in range(len(keys))]
+    return ([float(searched[near == ki].sum()) for ki in range(len(keys))],
+            [float(kept[near == ki].sum()) for ki in range(len(keys))])
 
 
 def _affine(idx: torch.Tensor, w: torch.Tensor, canonical: torch.Tensor, poses) -> tuple[torch.Tensor, torch.Tensor]:
@@ -375,7 +391,8 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
         report.append({"nodes": len(group), "gaussians": int(own.sum()), "taken": any(take_key),
                        "keys_taken": [k for k, take in zip(keys, take_key) if take],
                        "error_searched": round(float(searched.mean()), 5),
-                       "error_learned": round(float(kept.mean()), 5)})
+                       "error_learned": round(float(kept.mean()), 5),
+                       "key_ratio": [round(a / max(b, 1e-12), 3) for a, b in zip(*_key_errors(searched, kept, keys))]})
         if not any(take_key):
             continue
         with torch.no_grad():

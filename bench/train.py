@@ -3,7 +3,7 @@ score the held-out views beside two trivial baselines and the sample's exact mod
 
     python bench/train.py [--json OUT.json] [--samples spinner,wave,morph,texture,walker,floor,walker-dnerf]
                           [--minutes M] [--iters N] [--profile-steps K] [--device auto|cpu|cuda] [--datasets DIR]
-                          [--set FIELD=VALUE ...]
+                          [--checkpoints DIR] [--set FIELD=VALUE ...]
 
 `walker-dnerf` is the walker filmed the way D-NeRF's captures are: 12 cameras at one elevation, 96 frames at 200 px,
 frame f seen by camera f mod 12 alone (``splatreel sample walker --views 12 --time-steps 96 --size 200
@@ -214,6 +214,8 @@ def main() -> None:
                     help="compute device (default: the recipe's, 'auto')")
     ap.add_argument("--datasets", type=Path, metavar="DIR",
                     help="keep the generated datasets in DIR/NAME and read them from there when present")
+    ap.add_argument("--checkpoints", type=Path, metavar="DIR",
+                    help="keep each sample's checkpoint as DIR/NAME.safetensors (default: a temporary folder)")
     ap.add_argument("--profile-steps", type=int, default=10, help="steps timed for the breakdown (0: skip)")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a field of the recipe's TrainConfig (a Python literal, e.g. inbetween_share=0); "
@@ -261,7 +263,9 @@ def main() -> None:
             if overrides:
                 cfg = dataclasses.replace(cfg, **overrides)
             t = time.perf_counter()
-            tr = Trainer(ds, cfg, Path(tmp) / f"{name}.safetensors", progress=True)
+            out = (args.checkpoints or Path(tmp)) / f"{name}.safetensors"
+            out.parent.mkdir(parents=True, exist_ok=True)
+            tr = Trainer(ds, cfg, out, force=True, progress=True)  # a bench run replaces its own checkpoint
             res = tr.run()
             seconds = time.perf_counter() - t  # includes the alpha test, confidence maps and set-up
             ev = tr.evaluate_test()

@@ -116,8 +116,8 @@ def _search(error, learned: dict, frames: int, mid: int, rng: np.random.Generato
             base = turns[k]
             step = min(STRIDE, frames - 1 - k if d > 0 else k)
             ahead = [x for x in range(k + d * step, k + d * (max(POOL, step) + 1), d * step) if 0 <= x < frames]
-            if SCORE_EVERY > 1 and step == 1:  # every SCORE_EVERY-th frame ahead, the farthest one kept
-                ahead = ahead[::-1][::SCORE_EVERY][::-1]
+            if step == 1:  # every SCORE_EVERY-th frame ahead, counted back from the farthest
+                ahead = [x for x in ahead if (abs(ahead[-1] - k) - abs(x - k)) % SCORE_EVERY == 0]
 
             def score(inc: np.ndarray) -> float:
                 return float(np.mean([error(_matrix(inc * abs(x - k)) @ base, x) for x in ahead]))
@@ -137,12 +137,12 @@ def _search(error, learned: dict, frames: int, mid: int, rng: np.random.Generato
     return turns
 
 
-def _keys_taken(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> list[bool]:
-    """Per key, whether it takes the searched turns: they draw the frames nearest it better (`PER_KEY`), or all
-    frames of the clip."""
+def _keys_taken(searched: list[float], kept: list[float]) -> list[bool]:
+    """Per key, whether it takes the searched turns, from the per-key errors (`_key_errors`): they draw the frames
+    nearest it better by `MARGIN` (`PER_KEY`), or all frames of the clip."""
     if not PER_KEY:
-        return [bool(searched.sum() < MARGIN * kept.sum())] * len(keys)
-    return [bool(s < MARGIN * k) for s, k in zip(*_key_errors(searched, kept, keys))]
+        return [bool(sum(searched) < MARGIN * sum(kept))] * len(kept)
+    return [bool(s < MARGIN * k) for s, k in zip(searched, kept)]
 
 
 def _key_errors(searched: np.ndarray, kept: np.ndarray, keys: list[int]) -> tuple[list[float], list[float]]:
@@ -387,12 +387,13 @@ def refit_turns(trainer, seed: int = 0) -> list[dict]:
             turns = _search(error, learned, frames, mid, rng)
             searched = np.array([error(turns[k], k) for k in range(frames)])
             kept = np.array([error(learned[k], k) for k in range(frames)])
-        take_key = _keys_taken(searched, kept, keys)
+        by_key = _key_errors(searched, kept, keys)
+        take_key = _keys_taken(*by_key)
         report.append({"nodes": len(group), "gaussians": int(own.sum()), "taken": any(take_key),
                        "keys_taken": [k for k, take in zip(keys, take_key) if take],
                        "error_searched": round(float(searched.mean()), 5),
                        "error_learned": round(float(kept.mean()), 5),
-                       "key_ratio": [round(a / max(b, 1e-12), 3) for a, b in zip(*_key_errors(searched, kept, keys))]})
+                       "key_ratio": [round(a / max(b, 1e-12), 3) for a, b in zip(*by_key)]})
         if not any(take_key):
             continue
         with torch.no_grad():

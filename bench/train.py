@@ -215,7 +215,8 @@ def main() -> None:
     ap.add_argument("--datasets", type=Path, metavar="DIR",
                     help="keep the generated datasets in DIR/NAME and read them from there when present")
     ap.add_argument("--checkpoints", type=Path, metavar="DIR",
-                    help="keep each sample's checkpoint as DIR/NAME.safetensors (default: a temporary folder)")
+                    help="keep each sample's checkpoint as DIR/NAME.safetensors, refusing one that exists (default: a "
+                         "temporary folder)")
     ap.add_argument("--profile-steps", type=int, default=10, help="steps timed for the breakdown (0: skip)")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a field of the recipe's TrainConfig (a Python literal, e.g. inbetween_share=0); "
@@ -241,6 +242,14 @@ def main() -> None:
     unknown = [n for n in names if n not in SAMPLES and n not in SCENES and n not in variant]
     if unknown:
         ap.error(f"unknown sample {unknown[0]!r}: one of {', '.join([*SAMPLES, *SCENES, *variant])}")
+    if args.checkpoints:  # a kept checkpoint is the user's: never overwritten
+        taken = [n for n in names if (args.checkpoints / f"{n}.safetensors").exists()]
+        if taken:
+            ap.error(f"{args.checkpoints / taken[0]}.safetensors already exists")
+        try:
+            args.checkpoints.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            ap.error(f"cannot write checkpoints to {args.checkpoints}: {exc.strerror}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
@@ -263,9 +272,7 @@ def main() -> None:
             if overrides:
                 cfg = dataclasses.replace(cfg, **overrides)
             t = time.perf_counter()
-            out = (args.checkpoints or Path(tmp)) / f"{name}.safetensors"
-            out.parent.mkdir(parents=True, exist_ok=True)
-            tr = Trainer(ds, cfg, out, force=True, progress=True)  # a bench run replaces its own checkpoint
+            tr = Trainer(ds, cfg, (args.checkpoints or Path(tmp)) / f"{name}.safetensors", progress=True)
             res = tr.run()
             seconds = time.perf_counter() - t  # includes the alpha test, confidence maps and set-up
             ev = tr.evaluate_test()
